@@ -1,0 +1,27 @@
+"""The G-code files that ship with taichi_mex (the repository's ``gcode/`` folder)."""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+
+DEFAULT_GCODE = "single_bead.gcode"
+
+
+def gcode_dir() -> Path:
+    """Folder of the bundled G-code, installed (package data) or in a source checkout."""
+    installed = Path(str(importlib.resources.files("taichi_mex"))) / "gcode"
+    if (installed / DEFAULT_GCODE).is_file():
+        return installed
+    return Path(__file__).resolve().parent.parent / "gcode"
+
+
+def gcode_path(name: str = DEFAULT_GCODE) -> Path:
+    """Path of a bundled G-code file by name (``'block_3x3'`` or ``'block_3x3.gcode'``)."""
+    if not name.endswith(".gcode"):
+        name += ".gcode"
+    return gcode_dir() / name
+
+
+def bundled_names() -> list[str]:
+    return sorted(p.name for p in gcode_dir().glob("*.gcode"))

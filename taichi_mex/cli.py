@@ -1,0 +1,220 @@
+"""Command line: ``python -m taichi_mex [FILE.gcode] [options]`` and its sub-commands.
+
+Every user mistake ends as one paragraph on stderr and exit code 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from . import bundled
+from .errors import SimulationDiverged, UserInputError
+
+SUBCOMMANDS = ("scene", "study", "bench", "sweep")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"'{text}' must be positive")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports errors through UserInputError (one paragraph, exit 2)."""
+
+    def error(self, message):
+        raise UserInputError(f"{message}. Run '{self.prog} --help' for the options.")
+
+
+def print_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="python -m taichi_mex",
+        description="Simulate the beads a 3D printer lays down from a G-code file. Sub-commands: "
+        + ", ".join(SUBCOMMANDS) + " (run 'python -m taichi_mex scene --help').",
+    )
+    p.add_argument("gcode", nargs="?", default=None,
+                   help=f"G-code file (default: the bundled {bundled.DEFAULT_GCODE})")
+    p.add_argument("--out", type=Path, default=Path("taichi_mex_out"), help="output folder")
+    p.add_argument("--printer", default="prusa_mini",
+                   help="pyGCodeDecode printer preset name, or FILE.yaml[:NAME] (default prusa_mini)")
+    p.add_argument("--layers", default=None, help="layers to simulate, e.g. 2-3 (1-based)")
+    p.add_argument("--region", default=None, help="XY box XMIN:XMAX,YMIN:YMAX in mm")
+    p.add_argument("--until", type=_positive_float, default=None, help="stop at this print time (s)")
+    p.add_argument("--dry-run", action="store_true", help="plan only: print the plan and write plan.json")
+    add_run_options(p)
+    p.add_argument("--settle", type=float, default=0.0,
+                   help="simulate this long (s) after the last deposition (default 0)")
+    return p
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by the print command and the scenes."""
+    from .backend import ARCHES, PRECISIONS
+    from .config import PRESETS, SCHEMES
+
+    p.add_argument("--resolution", "--spacing-mm", dest="spacing_mm", type=_positive_float,
+                   default=None, help="particle spacing in mm (default 0.05; preset-dependent)")
+    p.add_argument("--scheme", "--solver", dest="scheme", choices=SCHEMES, default=None,
+                   help="pressure scheme (default edac)")
+    p.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="named parameter set: 'paper' = the seed paper's EDAC baseline")
+    p.add_argument("--viscosity", type=_positive_float, default=None,
+                   help="Newtonian melt viscosity in Pa s (overrides the material)")
+    p.add_argument("--sound-speed", type=_positive_float, default=None,
+                   help="EDAC artificial sound speed in m/s")
+    p.add_argument("--arch", choices=ARCHES, default="cpu", help="cpu (default) or gpu")
+    p.add_argument("--precision", choices=PRECISIONS, default="f32", help="f32 (default) or f64")
+    p.add_argument("--threads", type=int, default=None, help="CPU threads (default: all cores)")
+    p.add_argument("--output-every", type=_positive_float, default=None,
+                   help="write an HDF5 frame every this many simulated seconds (default: 10 frames)")
+    p.add_argument("--snapshot-every", type=_positive_float, default=None,
+                   help="also write PNG snapshots every this many simulated seconds (default: end only)")
+    p.add_argument("--field", default="density",
+                   help="field the snapshots are coloured by (density, pressure, velocity, temperature, ...)")
+    p.add_argument("--no-snapshots", action="store_true", help="skip the PNG snapshots")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def build_options(args, scheme_default: str = "edac"):
+    """RunOptions and Material from parsed arguments and an optional preset."""
+    from .config import PRESETS, Material, RunOptions, apply_overrides
+
+    run = RunOptions(scheme=scheme_default)
+    material = Material()
+    preset = PRESETS.get(getattr(args, "preset", None) or "", {})
+    if preset:
+        run = apply_overrides(run, preset.get("run", {}))
+        material = apply_overrides(material, preset.get("material", {}))
+    changes = {}
+    if args.spacing_mm is not None:
+        changes["spacing_mm"] = args.spacing_mm
+    if args.scheme is not None:
+        changes["scheme"] = args.scheme
+    changes.update(arch=args.arch, precision=args.precision, cpu_threads=args.threads,
+                   output_every_s=args.output_every, snapshot_field=args.field,
+                   snapshots=not args.no_snapshots, progress=not args.quiet)
+    if args.sound_speed is not None:
+        changes["edac"] = {"sound_speed_m_s": args.sound_speed}
+    run = apply_overrides(run, changes)
+    if args.viscosity is not None:
+        material = apply_overrides(material, {"viscosity_pa_s": args.viscosity,
+                                              "viscosity_model": "newtonian"})
+    return run, material, preset
+
+
+def run_simulation(sim, out_dir: Path, snapshot_every: float | None = None) -> dict:
+    """Print the estimate, run with a progress bar, report where the results are."""
+    print(f"estimate: {sim.describe_estimate()}")
+    for warning in sim.estimate["warnings"]:
+        print(f"warning: {warning}")
+    sim.snapshot_every_s = snapshot_every
+    summary = sim.run()
+    state = "interrupted (frames so far kept)" if summary.get("interrupted") else "done"
+    print(f"{state}: {summary['steps']} steps, {summary['simulated_time_s']:.4g} s simulated in "
+          f"{summary['wall_time_s']:.1f} s ({summary['particle_steps_per_s'] / 1e6:.2f} M particle-steps/s)")
+    if "commanded_volume_mm3" in summary:
+        print(f"deposited {summary['deposited_volume_mm3']:.4f} mm^3 of "
+              f"{summary['commanded_volume_mm3']:.4f} mm^3 commanded; density error mean "
+              f"{100 * summary['density_error_mean']:.3f} %, max {100 * summary['density_error_max']:.3f} %")
+    print(f"results in {out_dir}: particles.h5, particles.xdmf, summary.json, snapshots/")
+    return summary
+
+
+def run_print(argv: list[str]) -> int:
+    from .plan import make_plan
+    from .toolpath import parse_layers, parse_region
+
+    args = print_parser().parse_args(argv)
+    run, material, preset = build_options(args)
+    default = preset.get("gcode", bundled.DEFAULT_GCODE)
+    gcode = Path(args.gcode) if args.gcode else bundled.gcode_path(default)
+    layers = parse_layers(args.layers)
+    region = parse_region(args.region)
+    plan = make_plan(gcode, args.printer, layers=layers, until_s=args.until, region_mm=region)
+    print(plan.describe())
+    path = plan.write(args.out)
+    print(f"plan written to {path}")
+    if args.dry_run:
+        return 0
+    from .scenes.print import PrintScene
+    from .simulation import Simulation
+
+    scene = PrintScene(gcode, args.printer, layers=layers, region_mm=region, until_s=args.until,
+                       settle_s=args.settle,
+                       nozzle_height="one_diameter" if preset.get("nozzle_height") == "one_diameter" else "gcode")
+    sim = Simulation(scene, run, material, out_dir=args.out)
+    summary = run_simulation(sim, args.out, args.snapshot_every)
+    return 130 if summary.get("interrupted") else 0
+
+
+def default_print_scene(args=None):
+    """The bundled default print and its options (what `python -m taichi_mex` runs)."""
+    from .scenes.print import PrintScene
+
+    args = args or print_parser().parse_args([])
+    run, material, preset = build_options(args)
+    gcode = bundled.gcode_path(preset.get("gcode", bundled.DEFAULT_GCODE))
+    return PrintScene(gcode, args.printer), run, material
+
+
+def run_bench(argv: list[str]) -> int:
+    import json
+
+    from . import bench
+
+    p = _Parser(prog="python -m taichi_mex bench",
+                description="Measure particle-steps per second (and the toolpath sampler).")
+    p.add_argument("which", nargs="?", default="all", choices=["all", "print", "edac", "toolpath"])
+    p.add_argument("--particles", type=int, default=100_000, help="size of the EDAC block")
+    p.add_argument("--measure", type=_positive_float, default=None,
+                   help="simulated seconds to time (default: per benchmark)")
+    p.add_argument("--out", type=Path, default=None, help="also write bench.json here")
+    args = p.parse_args(argv)
+    rows = []
+    if args.which == "toolpath":
+        result = bench.bench_toolpath()
+        bench.print_toolpath(result)
+        rows.append(result)
+    if args.which in ("all", "print"):
+        scene, run, material = default_print_scene()
+        from .simulation import Simulation
+
+        sim = Simulation(scene, run, material)
+        span = sim.plan.t_end_s - sim.plan.t_start_s
+        r = bench.bench_scene(sim, 0.1 * span, args.measure or 0.3 * span)
+        rows.append({"name": f"default print ({run.scheme})", **r})
+    if args.which in ("all", "edac"):
+        sim = bench.edac_block(args.particles)
+        r = bench.bench_scene(sim, 2e-4, args.measure or 2e-3)
+        rows.append({"name": "EDAC tank (Wendland, h=1.3dx)", **r})
+    if args.which != "toolpath":
+        bench.print_table(rows)
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "bench.json").write_text(json.dumps(rows, indent=2))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] == "bench":
+            return run_bench(argv[1:])
+        if argv and argv[0] in SUBCOMMANDS:
+            raise UserInputError(f"'{argv[0]}' is not available yet.")
+        return run_print(argv)
+    except UserInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationDiverged as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

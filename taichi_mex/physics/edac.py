@@ -1,0 +1,200 @@
+"""EDAC: entropically damped artificial compressibility (Ramachandran & Puri, Computers &
+Fluids 179, 2019), free-surface form as in PySPH's ``EDACScheme`` (pb = 0), which the seed
+paper used. Pressure is a transported variable, no equation of state:
+
+    dp/dt = -rho c^2 div v + nu_edac lap p,     nu_edac = alpha h c / 8          (Eq. 10)
+    dv/dt = -1/m_i sum_j (V_i^2 + V_j^2) p_ij grad W_ij + viscous + g
+
+with V = 1/sum_j W_ij (number-density volume), p_ij = (rho_j p_i + rho_i p_j)/(rho_i + rho_j),
+summation density rho_i = m_i sum_j W_ij, walls with hydrostatically extrapolated pressure
+(Adami et al. 2012) and a ghost velocity for no-slip, and PySPH's PEC midpoint integrator.
+"""
+
+import math
+
+from ..backend import ti
+from ..state import FLUID, INLET, NOZZLE
+
+
+@ti.data_oriented
+class EDAC:
+    def __init__(self, state, grid, kernel, viscosity, opts, gravity_m_s2: float, rho0: float):
+        self.state = state
+        self.grid = grid
+        self.K = kernel
+        self.visc = viscosity
+        self.opts = opts
+        self.rho0 = float(rho0)
+        self.c = float(opts.sound_speed_m_s)
+        self.h = kernel.h_smoothing_m
+        self.eps = 0.01 * self.h * self.h
+        self.nu_edac = opts.edac_alpha * self.h * self.c / 8.0
+        self.g = (0.0, 0.0, -float(gravity_m_s2))
+        self.clamp = bool(opts.clamp_wall_pressure)
+        self.V = state.add("number_volume")  # m^3: 1 / sum_j W_ij (Hu & Adams volume)
+        self.x0 = state.add("edac_x0", 3)
+        self.v0 = state.add("edac_v0", 3)
+        self.p0 = state.add("edac_p0")
+        self.acc = state.add("acceleration", 3)
+        self.dpdt = state.add("edac_dpdt")
+        self.xdot = state.add("edac_xdot", 3)
+        self.v_ghost = state.add("wall_ghost_velocity", 3)
+        self.extremes = (0.0, 0.0)  # fastest speed, largest acceleration at the last evaluation
+
+    # ------------------------------------------------------------------ time step
+    def time_step(self, nu_max: float) -> tuple[float, dict]:
+        """Largest stable dt and each limit (s): CFL, viscous, force (PySPH's criteria),
+        from the extremes the last evaluation returned."""
+        vmax, amax = self.extremes
+        limits = {"cfl": self.opts.cfl * self.h / (self.c + vmax)}
+        if nu_max > 0:
+            limits["viscous"] = 0.125 * self.h * self.h / nu_max
+        if amax > 0:
+            limits["force"] = 0.25 * math.sqrt(self.h / amax)
+        return min(limits.values()), limits
+
+    # ------------------------------------------------------------------ PEC stages
+    @ti.kernel
+    def predict(self, n: ti.i32, half_dt: float, t_eval: float) -> float:
+        """Keep x0, v0, p0; move fluid to t + dt/2 with the last rates (EDACStep.stage1).
+        Returns the largest fluid displacement since the last neighbour-list rebuild."""
+        for i in range(n):
+            self.x0[i] = self.state.x[i]
+            self.v0[i] = self.state.v[i]
+            self.p0[i] = self.state.p[i]
+        self._advance(n, half_dt, t_eval)
+        moved = 0.0
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                ti.atomic_max(moved, self.grid.displacement(i))
+        return moved
+
+    @ti.func
+    def _advance(self, n, dt, t_eval):
+        # Melt released by the inlet after the last evaluation has no rates yet: it keeps
+        # its inflow velocity and feels gravity only until the next evaluation.
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                xd = self.xdot[i]
+                a = self.acc[i]
+                dp = self.dpdt[i]
+                if self.state.born[i] > t_eval:
+                    xd = self.v0[i]
+                    a = ti.Vector(self.g)
+                    dp = 0.0
+                self.state.x[i] = self.x0[i] + dt * xd
+                self.state.v[i] = self.v0[i] + dt * a
+                self.state.p[i] = self.p0[i] + dt * dp
+
+    def evaluate(self, correct_dt: float = 0.0, t_eval: float = 0.0) -> int:
+        """Rates at the current state; with correct_dt > 0 also the corrector step
+        (EDACStep.stage2). Returns the number of non-finite fluid particles."""
+        out = self._evaluate(self.state.n, correct_dt, t_eval)
+        self.extremes = (float(out[0]), float(out[1]))
+        return int(out[2])
+
+    @ti.kernel
+    def _evaluate(self, n: ti.i32, dt: float, t_eval: float) -> ti.types.vector(3, float):
+        self._density(n)
+        self._walls(n)
+        self._rates(n)
+        if dt > 0:
+            self._advance(n, dt, t_eval)
+        vmax = 0.0
+        amax = 0.0
+        bad = 0.0
+        for i in range(n):
+            ph = self.state.phase[i]
+            if ph == FLUID:
+                s = self.state.v[i].norm()
+                if ti.math.isnan(s) or ti.math.isinf(s):
+                    bad += 1.0
+                else:
+                    ti.atomic_max(vmax, s)
+                    ti.atomic_max(amax, self.acc[i].norm())
+            elif ph == INLET or ph == NOZZLE:
+                ti.atomic_max(vmax, self.state.v[i].norm())
+        return ti.Vector([vmax, amax, bad])
+
+    @ti.func
+    def _density_task(self, i, j, xij, acc: ti.template()):
+        acc += self.K.W(xij.norm())
+
+    @ti.func
+    def _density(self, n):
+        for i in range(n):
+            acc = self.K.W0
+            self.grid.for_each_neighbour(i, self._density_task, acc)
+            self.V[i] = 1.0 / acc
+            if self.state.phase[i] == FLUID:
+                self.state.rho[i] = self.state.m[i] * acc
+            else:
+                self.state.rho[i] = self.rho0
+
+    @ti.func
+    def _wall_task(self, i, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID:
+            w = self.K.W(xij.norm())
+            g = ti.Vector(self.g)
+            acc[0] += w
+            acc[1] += (self.state.p[j] + self.state.rho[j] * g.dot(xij)) * w
+            for d in ti.static(range(3)):
+                acc[2 + d] += self.state.v[j][d] * w
+
+    @ti.func
+    def _walls(self, n):
+        for i in range(n):
+            if self.state.phase[i] != FLUID:
+                acc = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0])
+                self.grid.for_each_neighbour(i, self._wall_task, acc)
+                vw = self.state.v[i]
+                p = 0.0
+                vg = vw
+                if acc[0] > 1e-12 * self.K.W0:
+                    p = acc[1] / acc[0]
+                    vf = ti.Vector([acc[2], acc[3], acc[4]]) / acc[0]
+                    vg = 2.0 * vw - vf
+                if ti.static(self.clamp):
+                    p = ti.max(p, 0.0)
+                self.state.p[i] = p
+                self.v_ghost[i] = vg
+
+    @ti.func
+    def _rate_task(self, i, j, xij, acc: ti.template()):
+        st = self.state
+        r2 = xij.norm_sqr()
+        gw = self.K.F(ti.sqrt(r2)) * xij
+        Vi = self.V[i]
+        Vj = self.V[j]
+        vol2 = Vi * Vi + Vj * Vj
+        rho_i = st.rho[i]
+        rho_j = st.rho[j]
+        p_i = st.p[i]
+        p_j = st.p[j]
+        p_ij = (rho_j * p_i + rho_i * p_j) / (rho_i + rho_j)
+        a = -vol2 * p_ij * gw
+        lap = vol2 * xij.dot(gw) / (r2 + self.eps)
+        eta_i = self.visc.eta_of(i)
+        vij = st.v[i] - st.v[j]
+        if st.phase[j] == FLUID:
+            eta_j = self.visc.eta_of(j)
+            a += lap * (2.0 * eta_i * eta_j / (eta_i + eta_j + 1e-30)) * vij
+        else:
+            a += lap * eta_i * (st.v[i] - self.v_ghost[j])
+        eta_e = 2.0 * self.nu_edac * rho_i * rho_j / (rho_i + rho_j)
+        dp = (rho_i / rho_j) * self.c * self.c * st.m[j] * vij.dot(gw) * st.m[i] \
+            + lap * eta_e * (p_i - p_j)
+        for d in ti.static(range(3)):
+            acc[d] += a[d]
+        acc[3] += dp
+
+    @ti.func
+    def _rates(self, n):
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                acc = ti.Vector([0.0, 0.0, 0.0, 0.0])
+                self.grid.for_each_neighbour(i, self._rate_task, acc)
+                inv_m = 1.0 / self.state.m[i]
+                self.acc[i] = ti.Vector([acc[0], acc[1], acc[2]]) * inv_m + ti.Vector(self.g)
+                self.dpdt[i] = acc[3] * inv_m
+                self.xdot[i] = self.state.v[i]

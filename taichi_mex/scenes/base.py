@@ -1,0 +1,79 @@
+"""What every scene hands the simulation: particles, domain, times, physics it needs."""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class ParticleBlock:
+    """Particles to create at the start (absolute positions in m)."""
+
+    position_m: np.ndarray
+    phase: int
+    velocity_m_s: np.ndarray | None = None
+    temperature_c: np.ndarray | float | None = None
+    bead: int = -1
+
+
+@dataclass
+class InletSpec:
+    """A G-code-driven nozzle (see inlet.NozzleInlet)."""
+
+    selection: object
+    z_offset_m: float = 0.0
+    tip_outer_diameter_m: float | None = None
+
+
+@dataclass
+class ScenePlan:
+    name: str
+    domain_lo_m: np.ndarray
+    domain_hi_m: np.ndarray
+    t_start_s: float
+    t_end_s: float
+    blocks: list[ParticleBlock] = field(default_factory=list)
+    inlet: InletSpec | None = None
+    #: fluid particles the inlet may add over the run (capacity planning)
+    inflow_particles: int = 0
+    #: physics the scene needs on top of the scheme ('thermal', ...)
+    needs: set = field(default_factory=set)
+    #: a point and the extrusion direction for cross-section snapshots (m, unit vector)
+    section_point_m: np.ndarray | None = None
+    section_direction: np.ndarray | None = None
+    #: commanded deposition (m^3 as a function of time), for mass bookkeeping
+    commanded_volume_m3: object = None
+    notes: dict = field(default_factory=dict)
+
+    @property
+    def origin_m(self) -> np.ndarray:
+        return 0.5 * (self.domain_lo_m + self.domain_hi_m)
+
+    def initial_count(self) -> int:
+        return int(sum(len(b.position_m) for b in self.blocks))
+
+
+def box_walls(lo_m, hi_m, spacing_m: float, layers: int, open_top: bool = True) -> np.ndarray:
+    """Wall particles around the box [lo, hi] (fluid inside), cell-centred lattice outside it."""
+    lo = np.asarray(lo_m, dtype=np.float64)
+    hi = np.asarray(hi_m, dtype=np.float64)
+    n = np.round((hi - lo) / spacing_m).astype(int)
+    ranges = [np.arange(-layers, n[k] + layers) for k in range(3)]
+    if open_top:
+        ranges[2] = np.arange(-layers, n[2] + 1)
+    I, J, K = np.meshgrid(*ranges, indexing="ij")
+    inside = (I >= 0) & (I < n[0]) & (J >= 0) & (J < n[1]) & (K >= 0)
+    if not open_top:
+        inside &= K < n[2]
+    pts = np.stack([I[~inside], J[~inside], K[~inside]], axis=1)
+    return lo + (pts + 0.5) * spacing_m
+
+
+def lattice_block(lo_m, hi_m, spacing_m: float) -> np.ndarray:
+    """Cell-centred cubic lattice filling [lo, hi]."""
+    lo = np.asarray(lo_m, dtype=np.float64)
+    hi = np.asarray(hi_m, dtype=np.float64)
+    n = np.maximum(np.round((hi - lo) / spacing_m).astype(int), 1)
+    axes = [lo[k] + (np.arange(n[k]) + 0.5) * spacing_m for k in range(3)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    return np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)

@@ -1,0 +1,180 @@
+"""Printing from G-code: a moving nozzle inlet over a build plate.
+
+Only what the selection needs is modelled: the plate covers the selected deposition plus a
+margin, the run spans the selected time window, and layers below the first selected one
+are laid down as solid, slicer-shaped beads (rounded rectangles, A = (W - H) H + pi H^2/4,
+at the commanded volume per mm), so ``--layers 2-3`` prints onto a realistic substrate.
+"""
+
+import numpy as np
+
+from ..boundaries import plate_lattice
+from ..plan import make_plan
+from ..state import PLATE, SOLID
+from .base import InletSpec, ParticleBlock, ScenePlan
+
+
+class PrintScene:
+    name = "print"
+
+    def __init__(self, gcode, printer: str = "prusa_mini", layers=None, region_mm=None,
+                 until_s: float | None = None, settle_s: float = 0.0,
+                 nozzle_tip_outer_diameter_mm: float | None = None,
+                 nozzle_height: str = "gcode"):
+        self.gcode = gcode
+        self.printer = printer
+        self.layers = layers
+        self.region_mm = region_mm
+        self.until_s = until_s
+        self.settle_s = float(settle_s)
+        self.tip_outer_mm = nozzle_tip_outer_diameter_mm
+        if nozzle_height not in ("gcode", "one_diameter"):
+            raise ValueError("nozzle_height is 'gcode' or 'one_diameter'")
+        self.nozzle_height = nozzle_height
+        self.print_plan = make_plan(gcode, printer, layers=layers, until_s=until_s,
+                                    region_mm=region_mm, plan_whole_file=False)
+
+    @property
+    def selection(self):
+        return self.print_plan.selection
+
+    @property
+    def trajectory(self):
+        return self.print_plan.trajectory
+
+    def z_offset_m(self) -> float:
+        if self.nozzle_height == "gcode":
+            return 0.0
+        traj = self.trajectory
+        first = min(self.selection.layers)
+        # the seed paper's nozzle sat one diameter above the surface it printed on
+        below = traj.layer_z_mm[first - 1] if first > 1 else 0.0
+        return 1e-3 * (traj.printer.nozzle_diameter_mm - (traj.layer_z_mm[first] - below))
+
+    def plan(self, run, material) -> ScenePlan:
+        sel = self.selection
+        traj = self.trajectory
+        dx = run.spacing_m
+        kernel, factor = run.resolved_kernel()
+        H = factor * dx
+        zoff = self.z_offset_m()
+        ext = sel.extent_mm() * 1e-3
+        nozzle_r = 0.5e-3 * (self.tip_outer_mm or 2 * traj.printer.nozzle_diameter_mm)
+        margin = run.margin_mm * 1e-3 + nozzle_r
+        lo_xy = ext[0, :2] - margin
+        hi_xy = ext[1, :2] + margin
+        t0 = sel.t_start_s
+        t1 = sel.t_end_s + self.settle_s if self.until_s is None else min(self.until_s, sel.t_end_s + self.settle_s)
+        t1 = max(t1, t0 + 1e-6)
+        times = np.linspace(t0, min(t1, traj.print_time_s), 400)
+        z_nozzle = traj.sample(times, clip=True).position_mm[:, 2] * 1e-3 + zoff
+        column = (int(np.ceil(H / dx)) + 2) * dx
+        z_top = float(z_nozzle.max()) + column + 2 * H
+        z_bottom = -(run.plate_layers + 1) * dx - H
+        lo = np.array([lo_xy[0] - H, lo_xy[1] - H, z_bottom])
+        hi = np.array([hi_xy[0] + H, hi_xy[1] + H, z_top])
+
+        plate = plate_lattice(lo_xy[0], hi_xy[0], lo_xy[1], hi_xy[1], dx, run.plate_layers)
+        blocks = [ParticleBlock(plate, PLATE, temperature_c=None)]
+        substrate = self._substrate(dx, lo_xy, hi_xy, zoff)
+        if len(substrate):
+            blocks.append(ParticleBlock(substrate, SOLID, temperature_c=None))
+
+        sel_volume = sel.volume_mm3 * 1e-9
+        inflow = int(np.ceil(sel_volume / dx**3 * 1.02)) + 16
+        tip = None if self.tip_outer_mm is None else self.tip_outer_mm * 1e-3
+        mid_t = 0.5 * (t0 + sel.t_end_s)
+        s = traj.sample([mid_t], clip=True)
+        direction = np.array([s.velocity_mm_s[0, 0], s.velocity_mm_s[0, 1], 0.0])
+        if np.linalg.norm(direction) < 1e-9:
+            direction = self._longest_bead_direction()
+        speed = float(np.max(np.linalg.norm(traj.sample(times, clip=True).velocity_mm_s, axis=1))) * 1e-3
+        section = self._section_point(zoff)
+        return ScenePlan(
+            name=self.name, domain_lo_m=lo, domain_hi_m=hi, t_start_s=t0, t_end_s=t1,
+            blocks=blocks, inlet=InletSpec(sel, zoff, tip), inflow_particles=inflow,
+            needs=set(), section_point_m=section, section_direction=direction / np.linalg.norm(direction),
+            commanded_volume_m3=lambda t: float(sel.volume_until([t])[0]) * 1e-9,
+            notes={"gcode": str(traj.source), "printer": traj.printer.name,
+                   "speed_scale_m_s": max(speed, 1e-3), "z_offset_m": zoff,
+                   "selected_layers": sel.report()["selected_layers"],
+                   "substrate_particles": int(len(substrate)),
+                   "nozzle_diameter_m": traj.printer.nozzle_diameter_mm * 1e-3},
+        )
+
+    def _longest_bead_direction(self) -> np.ndarray:
+        traj = self.trajectory
+        ok = np.isfinite(self.selection.t_lo_s)
+        idx = np.nonzero(ok)[0]
+        d = traj.pos_end_mm[idx, :2] - traj.pos_begin_mm[idx, :2]
+        k = int(np.argmax(np.linalg.norm(d, axis=1)))
+        return np.array([d[k, 0], d[k, 1], 0.0])
+
+    def _section_point(self, zoff: float) -> np.ndarray:
+        """Middle of the longest selected bead (where a cross-section is representative)."""
+        traj = self.trajectory
+        sel = self.selection
+        ok = np.isfinite(sel.t_lo_s)
+        idx = np.nonzero(ok)[0]
+        a = traj.sample(sel.t_lo_s[idx]).position_mm
+        b = traj.sample(sel.t_hi_s[idx]).position_mm
+        k = int(np.argmax(np.linalg.norm(b - a, axis=1)))
+        mid = 0.5 * (a[k] + b[k]) * 1e-3
+        mid[2] = 0.5 * mid[2] + 0.5 * zoff
+        return mid
+
+    def _substrate(self, dx: float, lo_xy, hi_xy, zoff: float) -> np.ndarray:
+        """Lattice points inside the slicer-shaped beads of the layers below the selection."""
+        traj = self.trajectory
+        first = min(self.selection.layers)
+        if first <= 1:
+            return np.zeros((0, 3))
+        pts = []
+        for layer in range(1, first):
+            z_top = traj.layer_z_mm[layer] * 1e-3 + zoff
+            z_bot = (traj.layer_z_mm[layer - 1] * 1e-3 + zoff) if layer > 1 else 0.0
+            h = z_top - z_bot
+            idx = np.nonzero(traj.extruding & (traj.layer == layer))[0]
+            for i in idx:
+                p0 = traj.pos_begin_mm[i, :2] * 1e-3
+                p1 = traj.pos_end_mm[i, :2] * 1e-3
+                length = np.linalg.norm(p1 - p0)
+                if length <= 0:
+                    continue
+                area = traj.segment_volume_mm3[i] * 1e-9 / length
+                width = area / h + h * (1 - np.pi / 4)
+                pts.append(_obround_points(p0, p1, width, z_bot, h, dx, lo_xy, hi_xy))
+        if not pts:
+            return np.zeros((0, 3))
+        allp = np.concatenate(pts)
+        keys = np.round(allp / dx - 0.5).astype(np.int64)
+        _, unique = np.unique(keys, axis=0, return_index=True)
+        return allp[np.sort(unique)]
+
+    def describe(self) -> str:
+        return self.print_plan.describe()
+
+
+def _obround_points(p0, p1, width, z_bot, h, dx, lo_xy, hi_xy) -> np.ndarray:
+    """Lattice points (global lattice of spacing dx, cell-centred) in a rounded-rectangle tube."""
+    r = 0.5 * width
+    bmin = np.maximum(np.minimum(p0, p1) - r, lo_xy)
+    bmax = np.minimum(np.maximum(p0, p1) + r, hi_xy)
+    if np.any(bmax <= bmin):
+        return np.zeros((0, 3))
+    ix = np.arange(np.floor(bmin[0] / dx), np.ceil(bmax[0] / dx))
+    iy = np.arange(np.floor(bmin[1] / dx), np.ceil(bmax[1] / dx))
+    iz = np.arange(np.floor(z_bot / dx), np.ceil((z_bot + h) / dx))
+    X, Y, Z = np.meshgrid((ix + 0.5) * dx, (iy + 0.5) * dx, (iz + 0.5) * dx, indexing="ij")
+    P = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    P = P[(P[:, 2] > z_bot) & (P[:, 2] < z_bot + h)]
+    d = p1 - p0
+    t = ((P[:, :2] - p0) @ d) / (d @ d)
+    P, t = P[(t >= 0.0) & (t < 1.0)], t[(t >= 0.0) & (t < 1.0)]  # flat ends: the volume stays as commanded
+    lateral = np.linalg.norm(P[:, :2] - (p0 + t[:, None] * d), axis=1)
+    zc = z_bot + 0.5 * h
+    # cross-section: a rectangle of width W - H with half-discs of radius H/2 on both sides
+    half_flat = max(r - 0.5 * h, 0.0)
+    dz = P[:, 2] - zc
+    inside = (lateral <= half_flat) | ((lateral - half_flat) ** 2 + dz**2 <= (0.5 * h) ** 2)
+    return P[inside]

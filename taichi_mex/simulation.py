@@ -1,0 +1,421 @@
+"""The run loop: build a scene's Taichi state, step it, write frames, report.
+
+    from taichi_mex import Simulation, RunOptions
+    from taichi_mex.scenes.print import PrintScene
+
+    sim = Simulation(PrintScene("print.gcode"), RunOptions(spacing_mm=0.05), out_dir="run")
+    summary = sim.run()
+    xyz = sim.state.numpy("position", phase=0)   # fluid particles, metres
+"""
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from . import backend
+from .config import Material, RunOptions, to_dict
+from .errors import SimulationDiverged, UserInputError
+from .state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
+
+#: bytes per particle besides the registered fields: neighbour lists, sort buffers
+_TEMP_FACTOR = 2.0
+
+
+def available_memory_bytes() -> int:
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES"))
+
+
+class Simulation:
+    def __init__(self, scene, run: RunOptions | None = None, material: Material | None = None,
+                 out_dir=None):
+        self.run_opts = run or RunOptions()
+        self.material = material or Material()
+        self.run_opts.validate()
+        self.material.validate()
+        self.scene = scene
+        self.plan = scene.plan(self.run_opts, self.material)
+        self.out_dir = Path(out_dir) if out_dir else None
+        self.estimate = self._estimate()
+        if self.estimate["memory_bytes"] > 0.8 * available_memory_bytes():
+            raise UserInputError(
+                f"This scene needs about {self.estimate['memory_bytes'] / 2**30:.1f} GiB for "
+                f"{self.estimate['particles']:,} particles, more than the "
+                f"{available_memory_bytes() / 2**30:.1f} GiB available. Use a coarser "
+                "--resolution, fewer --layers or a smaller --region.")
+        self._built = False
+        self.snapshot_every_s = None
+        self.time_s = self.plan.t_start_s
+        self.steps = 0
+        self.history: list[dict] = []
+
+    # ----------------------------------------------------------------- planning
+    def _estimate(self) -> dict:
+        run = self.run_opts
+        dx = run.spacing_m
+        kernel, factor = run.resolved_kernel()
+        H = factor * dx
+        initial = self.plan.initial_count()
+        inflow = self.plan.inflow_particles
+        inlet_extra = 0
+        if self.plan.inlet is not None:
+            inlet_extra = 4 * int(np.pi * (0.5e-3 * self.plan.inlet.selection.trajectory.printer.nozzle_diameter_mm / dx + 1) ** 2) * int(factor + 2)
+            if self.plan.inlet.tip_outer_diameter_m:
+                inlet_extra += int(np.pi * (0.5 * self.plan.inlet.tip_outer_diameter_m / dx) ** 2) * int(factor + 2)
+        capacity = int(1.02 * (initial + inflow + inlet_extra)) + 64
+        ext = self.plan.domain_hi_m - self.plan.domain_lo_m
+        n_cells = int(np.prod(np.ceil(2 * ext / H)))  # cells of half the support radius
+        fp = 8 if run.precision == "f64" else 4
+        # ~40 scalar fields across core, scheme and sort buffers, plus neighbour lists
+        from .solver import SOLVERS
+
+        skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0)
+        max_nbr = self._max_neighbours(factor * (1.0 + skin))
+        per_particle = int(_TEMP_FACTOR * 40 * fp + 4 * max_nbr)
+        memory = capacity * per_particle + 8 * n_cells
+        span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
+        dt, limits = self._dt_guess(H)
+        warn = []
+        if "viscous" in limits and limits["viscous"] < 0.1 * limits["cfl"]:
+            warn.append(
+                f"Explicit viscosity (eta = {self.material.viscosity_pa_s:g} Pa s) limits the time "
+                f"step to {limits['viscous']:.3g} s, {limits['cfl'] / limits['viscous']:.0f}x below "
+                "the CFL limit; the implicit solver (--scheme dfsph) removes this limit.")
+        return {"warnings": warn, "dt_limits_s": limits, "particles": initial + inflow, "capacity": capacity, "grid_cells": n_cells,
+                "memory_bytes": memory, "simulated_time_s": span, "dt_estimate_s": dt,
+                "list_skin": skin,
+                "steps_estimate": int(np.ceil(span / dt)) if dt > 0 else 0,
+                "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
+
+    @staticmethod
+    def _max_neighbours(factor: float) -> int:
+        nominal = 4.0 / 3.0 * np.pi * factor**3
+        return int(np.ceil(2.5 * nominal / 8.0) * 8)
+
+    def _dt_guess(self, H: float) -> tuple[float, dict]:
+        """Expected time step and its limits (s), from the scene's speed scale."""
+        run = self.run_opts
+        v = self.plan.notes.get("speed_scale_m_s", 0.1)
+        scale = self.plan.notes.get("viscosity_scale", 1.0)
+        nu = self.material.zero_shear_viscosity(self.material.extrusion_temperature_c) * scale \
+            / self.material.density_kg_m3
+        if run.scheme == "edac":
+            h = 0.5 * H
+            limits = {"cfl": run.edac.cfl * h / (run.edac.sound_speed_m_s + v),
+                      "viscous": 0.125 * h * h / nu}
+        else:
+            limits = {"cfl": min(run.dfsph.cfl * 0.4 * run.spacing_m / max(v, 1e-9), run.dfsph.max_dt_s)}
+        return min(limits.values()), limits
+
+    def describe_estimate(self) -> str:
+        e = self.estimate
+        return (f"{e['particles']:,} particles (capacity {e['capacity']:,}), about "
+                f"{e['memory_bytes'] / 2**20:.0f} MiB, {e['grid_cells']:,} grid cells; "
+                f"{e['simulated_time_s']:.4g} s simulated in about {e['steps_estimate']:,} steps "
+                f"of {e['dt_estimate_s']:.3g} s")
+
+    # ----------------------------------------------------------------- building
+    def build(self) -> None:
+        if self._built:
+            return
+        from .grid import NeighbourGrid
+        from .kernels import Kernel
+        from .physics.viscosity_models import MeltViscosity
+        from .solver import SOLVERS
+        from .state import ParticleState
+
+        run = self.run_opts
+        self.arch_used = backend.init(run.arch, run.precision, run.cpu_threads)
+        kind, factor = run.resolved_kernel()
+        dx = run.spacing_m
+        self.kernel = Kernel(kind, factor * dx)
+        self.state = ParticleState(self.estimate["capacity"], origin_m=self.plan.origin_m)
+        self.thermal = None
+        if "thermal" in self.plan.needs or run.thermal.enabled:
+            from .physics.thermal import Thermal
+
+            self.thermal = Thermal(self)
+        self.viscosity = MeltViscosity(self.state, self.material,
+                                       self.thermal.T if self.thermal else None,
+                                       scale=self.plan.notes.get("viscosity_scale", 1.0))
+        skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0) * self.kernel.H
+        self.grid = NeighbourGrid(self.state, self.plan.domain_lo_m, self.plan.domain_hi_m,
+                                  self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
+        self.state.on_append = lambda _sl: setattr(self.grid, "stale", True)
+        self.inlet = None
+        if self.plan.inlet is not None:
+            from .inlet import NozzleInlet
+
+            spec = self.plan.inlet
+            self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H,
+                                     self.material.density_kg_m3, spec.z_offset_m,
+                                     spec.tip_outer_diameter_m)
+        from .physics.surface import SurfaceDetector
+
+        self.surface = SurfaceDetector(self)
+        self.solver = SOLVERS[run.scheme](self)
+        self.surface.attach(self.grid, self.kernel)
+        self.mass = self.material.density_kg_m3 * dx**3
+        for block in self.plan.blocks:
+            sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
+                                   density=self.material.density_kg_m3, bead=block.bead,
+                                   time_s=self.plan.t_start_s)
+            if self.thermal is not None:
+                self.thermal.initialise(sl, block)
+        if self.inlet is not None:
+            self.inlet.build_tip(self.plan.t_start_s)
+        self._built = True
+
+    # ----------------------------------------------------------------- stepping hooks
+    def move_boundaries(self, t: float) -> int:
+        """Move nozzle and inlet column to time t; returns the particles released as melt."""
+        if self.inlet is None or self._inlet_retired:
+            return 0
+        released = self.inlet.advance(t)
+        if released:
+            self.grid.stale = True  # new melt needs full neighbour lists
+            if self.thermal is not None:
+                self.thermal.on_release()
+        return released
+
+    def refresh(self, t: float, fluid_moved_m: float = np.inf) -> None:
+        """Move boundaries to time t; re-sort and rebuild the neighbour lists when they may be
+        stale (always, without a skin); update the viscosity."""
+        self.move_boundaries(t)
+        moved = fluid_moved_m
+        if self.inlet is not None and not self._inlet_retired:
+            moved = max(moved, self.inlet.displacement_since_rebuild())
+        if not self.grid.needs_rebuild(moved):
+            self.viscosity.update(self.state.n)
+            return
+        lost = self.grid.rebuild()
+        if self.inlet is not None:
+            self.inlet.mark_rebuilt()
+        if lost:
+            self.lost_particles += lost
+        if self.grid.overflowed():
+            raise SimulationDiverged(
+                f"At t = {t:.6g} s, {self.grid.overflowed()} particles had more than "
+                f"{self.grid.max_neighbours} neighbours: the melt has clumped far beyond its "
+                "rest spacing. " + self._likely_cause())
+        self.viscosity.update(self.state.n)
+
+    def _likely_cause(self) -> str:
+        run = self.run_opts
+        if run.dt_factor > 1:
+            return (f"Likely cause: dt_factor = {run.dt_factor:g} takes the time step beyond its "
+                    "stability limit; use dt_factor <= 1.")
+        if run.scheme == "edac":
+            eta = self.material.viscosity_pa_s
+            return (f"Likely cause: the explicit EDAC scheme (c_s = {run.edac.sound_speed_m_s} m/s, "
+                    f"eta = {eta} Pa s) cannot hold the melt incompressible; raise the sound speed, "
+                    "lower the CFL factor, or use --scheme dfsph.")
+        return ("Likely cause: the time step is too large for the pressure solve to converge; lower "
+                "the CFL factor or raise the iteration limits.")
+
+    # ----------------------------------------------------------------- running
+    def run(self, until_s: float | None = None, progress: bool | None = None) -> dict:
+        """Advance to ``until_s`` (default: the scene's end) and return the summary dict.
+
+        Ctrl-C stops after the current step; every frame written so far stays valid and the
+        summary says ``"interrupted": true``.
+        """
+        self.build()
+        run = self.run_opts
+        t_end = self.plan.t_end_s if until_s is None else min(until_s, self.plan.t_end_s)
+        progress = run.progress if progress is None else progress
+        span = max(t_end - self.plan.t_start_s, 1e-12)
+        every = run.output_every_s or span / 10.0
+        self.lost_particles = 0
+        self._inlet_retired = False
+        writer = self._open_writer()
+        t = self.time_s
+        next_out = t
+        next_snap = t + self.snapshot_every_s if self.snapshot_every_s else np.inf
+        interrupted = False
+        error = None
+        bar = _progress_bar(progress, span, t)
+        wall0 = time.perf_counter()
+        particle_steps = 0
+        dt_limits = {}
+        speed_limit = run.max_speed_m_s or max(1.0, 20.0 * self.plan.notes.get("speed_scale_m_s", 0.1))
+        self.solver.start(t)
+        try:
+            while True:
+                if writer is not None and t >= next_out - 1e-12:
+                    self._write_frame(writer, t)
+                    next_out += every
+                if writer is not None and t >= next_snap - 1e-12:
+                    self.snapshots_or_warn(f"t{t:.5f}s")
+                    next_snap += self.snapshot_every_s
+                if t >= t_end - 1e-12:
+                    break
+                dt, dt_limits = self.solver.time_step()
+                dt = min(dt * run.dt_factor, t_end - t)
+                if not np.isfinite(dt) or dt <= 0:
+                    raise SimulationDiverged(f"At t = {t:.6g} s the time step became {dt}. "
+                                             + self._likely_cause())
+                self.solver.step(t, dt)
+                t += dt
+                self.time_s = t
+                self.steps += 1
+                particle_steps += self.state.n
+                if self.inlet is not None and not self._inlet_retired and t > self.plan.inlet.selection.t_end_s:
+                    self.inlet.retire()
+                    self._inlet_retired = True
+                speed = self.solver.max_speed()
+                if speed > speed_limit:
+                    self.diverged(t, f"the fastest melt particle moves at {speed:.3g} m/s "
+                                     f"(limit {speed_limit:.3g} m/s)")
+                if bar is not None:
+                    bar.update(dt)
+                    if self.steps % 50 == 0:
+                        bar.set_postfix(particles=self.state.n, dt=f"{dt:.2e}", refresh=False)
+        except KeyboardInterrupt:
+            interrupted = True
+        except SimulationDiverged as exc:
+            error = exc
+        finally:
+            if bar is not None:
+                bar.close()
+        wall = time.perf_counter() - wall0
+        if writer is not None and interrupted:
+            self._write_frame(writer, t)
+        summary = self.summary(wall, particle_steps, dt_limits)
+        summary["interrupted"] = interrupted
+        if error is not None:
+            summary["error"] = str(error)
+        if writer is not None:
+            writer.close()
+            self._finish_outputs(summary)
+        if error is not None:
+            raise error
+        return summary
+
+    def diverged(self, t: float, what: str) -> None:
+        raise SimulationDiverged(f"The simulation blew up at t = {t:.6g} s: {what}. Frames "
+                                 "written so far are kept. " + self._likely_cause())
+
+    # ----------------------------------------------------------------- output
+    def config_dict(self) -> dict:
+        return {"scene": self.plan.name, "run": to_dict(self.run_opts), "material": to_dict(self.material),
+                "notes": self.plan.notes, "arch": getattr(self, "arch_used", None)}
+
+    def output_fields(self) -> list[str]:
+        fields = ["velocity", "density", "pressure", "bead_id", "phase"]
+        if self.thermal is not None:
+            fields.append("temperature")
+        return fields
+
+    def frame_data(self) -> dict:
+        phase = self.state.phase.to_numpy()[: self.state.n]
+        keep = phase != PLATE
+        data = {"position": self.state.numpy("position")[keep]}
+        for name in self.output_fields():
+            data[name] = self.state.numpy(name)[keep]
+        return data
+
+    def _open_writer(self):
+        if self.out_dir is None:
+            return None
+        from .output import FrameWriter
+
+        writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields())
+        writer.write_plate(self.state.numpy("position", PLATE))
+        return writer
+
+    def _write_frame(self, writer, t: float) -> None:
+        writer.write_frame(t, self.steps, self.frame_data())
+
+    def _finish_outputs(self, summary: dict) -> None:
+        (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+        if self.run_opts.snapshots:
+            self.snapshots_or_warn("final")
+
+    def snapshots_or_warn(self, tag: str) -> None:
+        """Snapshots are a view of the results, not the results: a rendering failure is
+        reported and the run goes on."""
+        try:
+            self.snapshots(tag)
+        except Exception as exc:  # noqa: BLE001 - VTK raises assorted errors without a display
+            print(f"warning: snapshots '{tag}' skipped: {exc}")
+
+    def snapshots(self, tag: str, field: str | None = None) -> list:
+        from .render import snapshot_set
+
+        data = self.frame_data()
+        field = field or self.run_opts.snapshot_field
+        if field not in data:
+            field = "density"
+        return snapshot_set(data, self.out_dir / "snapshots", tag, field, self.run_opts.spacing_m,
+                            self.plan.section_point_m, self.plan.section_direction,
+                            self.state.numpy("position", PLATE))
+
+    # ----------------------------------------------------------------- results
+    def density_errors(self) -> dict:
+        """|rho/rho0 - 1| over fluid particles with full kernel support (see surface.py)."""
+        from .physics.surface import interior_mask
+
+        rho = self.state.numpy("density", FLUID).astype(np.float64)
+        if len(rho) == 0:
+            return {"density_error_mean": 0.0, "density_error_max": 0.0, "interior_particles": 0}
+        err = np.abs(rho / self.material.density_kg_m3 - 1.0)
+        interior = interior_mask(self)
+        core = err[interior] if interior.any() else err
+        return {"density_error_mean": float(core.mean()), "density_error_max": float(core.max()),
+                "interior_particles": int(interior.sum()),
+                "density_error_max_all": float(err.max())}
+
+    def summary(self, wall_s: float, particle_steps: int, dt_limits: dict) -> dict:
+        phase = self.state.phase.to_numpy()[: self.state.n]
+        counts = {PHASE_NAMES[k]: int((phase == k).sum()) for k in PHASE_NAMES}
+        melt = int(((phase == FLUID) | (phase == SOLID)).sum())
+        vol_particle = self.run_opts.spacing_m**3
+        out = {
+            "scene": self.plan.name,
+            "scheme": self.run_opts.scheme,
+            "spacing_mm": self.run_opts.spacing_mm,
+            "particles_active": int(self.state.n),
+            "particles_by_phase": counts,
+            "particles_lost": int(self.lost_particles),
+            "deposited_volume_mm3": melt * vol_particle * 1e9,
+            "simulated_time_s": float(self.time_s - self.plan.t_start_s),
+            "end_time_s": float(self.time_s),
+            "wall_time_s": float(wall_s),
+            "steps": int(self.steps),
+            "particle_steps_per_s": float(particle_steps / wall_s) if wall_s > 0 else 0.0,
+            "wall_time_per_simulated_s": float(wall_s / max(self.time_s - self.plan.t_start_s, 1e-300)),
+            "last_dt_limits_s": {k: float(v) for k, v in dt_limits.items()},
+            "arch": getattr(self, "arch_used", None),
+            "precision": self.run_opts.precision,
+            "neighbour_rebuilds": int(self.grid.rebuilds),
+        }
+        if self.plan.commanded_volume_m3 is not None:
+            out["commanded_volume_mm3"] = float(self.plan.commanded_volume_m3(self.time_s)) * 1e9
+        if self.inlet is not None:
+            out["released_volume_mm3"] = self.inlet.released_volume_m3 * 1e9
+        out.update(self.density_errors())
+        out.update(self.solver.diagnostics())
+        if self.thermal is not None:
+            out.update(self.thermal.summary())
+        if hasattr(self.scene, "analyse"):
+            out.update(self.scene.analyse(self))
+        return out
+
+
+def _progress_bar(enabled: bool, span: float, t0: float):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=span, unit="sim-s", unit_scale=False, dynamic_ncols=True,
+                bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} sim-s [{elapsed}<{remaining}{postfix}]")

@@ -1,0 +1,148 @@
+"""Particle state: struct-of-arrays Taichi fields with a fixed capacity.
+
+Live particles occupy indices ``0 .. n-1``. Each neighbour-grid rebuild sorts them by cell
+(locality) and permutes *every registered field* with them, so physics modules register
+the per-particle fields they own (warm starts, temperature, ...) via :meth:`add`.
+Particles that leave the domain are dropped in that same sort and counted as lost.
+
+Positions are stored relative to a local origin (``origin_m``) so that f32 keeps about
+1e-9 m resolution on a 10 mm build region.
+"""
+
+
+import numpy as np
+
+from .backend import real_np_dtype, ti
+
+# phase codes: everything >= SOLID acts as a boundary for the fluid
+FLUID = 0
+SOLID = 1  # solidified melt: rigid, still conducts heat
+PLATE = 2
+NOZZLE = 3
+INLET = 4  # melt inside the nozzle bore, moving with the prescribed inflow
+PHASE_NAMES = {FLUID: "fluid", SOLID: "solid", PLATE: "plate", NOZZLE: "nozzle", INLET: "inlet"}
+
+
+@ti.func
+def is_fluid(phase):
+    return phase == FLUID
+
+
+@ti.func
+def is_boundary(phase):
+    return phase != FLUID
+
+
+@ti.data_oriented
+class ParticleState:
+    """Core per-particle fields (SI units) and the registry of fields that move with sorts."""
+
+    def __init__(self, capacity: int, origin_m=(0.0, 0.0, 0.0)):
+        self.capacity = int(capacity)
+        self.origin_m = np.asarray(origin_m, dtype=np.float64)
+        self.n = 0  # live particles (host copy, updated by the grid)
+        self.frozen = False  # set by the grid's first sort: no fields may be added after it
+        self.on_append = None  # callback(slice): the grid marks its lists stale
+        self._fields: dict[str, object] = {}
+        self.x = self.add("position", 3)  #: m, relative to origin_m
+        self.v = self.add("velocity", 3)  #: m/s
+        self.rho = self.add("density")  #: kg/m^3
+        self.p = self.add("pressure")  #: Pa
+        self.m = self.add("mass")  #: kg (boundary: rho0 * volume, see boundaries)
+        self.phase = self.add("phase", dtype=ti.i32)
+        self.bead = self.add("bead_id", dtype=ti.i32)  #: extruding interval, -1 for boundaries
+        self.born = self.add("birth_time")  #: s, time the particle entered the domain
+
+    def add(self, name: str, n: int = 1, dtype=None):
+        """Allocate and register a per-particle field (n = 1 scalar, 3 vector)."""
+        if self.frozen:
+            raise RuntimeError(f"field {name!r} registered after the first neighbour sort")
+        dtype = float if dtype is None else dtype
+        if n == 1:
+            f = ti.field(dtype, shape=self.capacity)
+        else:
+            f = ti.Vector.field(n, dtype, shape=self.capacity)
+        self._fields[name] = f
+        return f
+
+    def fields(self) -> dict:
+        return dict(self._fields)
+
+    def nbytes_per_particle(self) -> int:
+        return sum(_nbytes(f) for f in self._fields.values())
+
+    # ----------------------------------------------------------- host access
+    def numpy(self, name: str, phase: int | tuple | None = None) -> np.ndarray:
+        """Copy of a field for the live particles (positions in absolute metres)."""
+        arr = self._fields[name].to_numpy()[: self.n]
+        if name == "position":
+            arr = arr.astype(np.float64) + self.origin_m
+        if phase is not None:
+            arr = arr[np.isin(self.phase.to_numpy()[: self.n], np.atleast_1d(phase))]
+        return arr
+
+    def append(self, position_m: np.ndarray, phase: int, mass_kg, velocity_m_s=None,
+               density=0.0, bead: int = -1, time_s: float = 0.0) -> slice:
+        """Add particles at the end (between sorts); returns their index range."""
+        k = len(position_m)
+        if self.n + k > self.capacity:
+            raise RuntimeError(f"particle capacity {self.capacity} exceeded")
+        sl = slice(self.n, self.n + k)
+        dt = real_np_dtype()
+        vel = np.zeros((k, 3)) if velocity_m_s is None else np.broadcast_to(velocity_m_s, (k, 3))
+        mass = np.broadcast_to(np.asarray(mass_kg, dtype=dt), (k,))
+        if k:
+            self._append(self.n, np.ascontiguousarray(position_m - self.origin_m, dtype=dt),
+                         np.ascontiguousarray(vel, dtype=dt), np.ascontiguousarray(mass),
+                         float(density), int(phase), int(bead), float(time_s))
+        self.n += k
+        if self.on_append is not None and k:
+            self.on_append(sl)
+        return sl
+
+
+    @ti.kernel
+    def _append(self, start: ti.i32, pos: ti.types.ndarray(), vel: ti.types.ndarray(),
+                mass: ti.types.ndarray(), density: float, phase: ti.i32, bead: ti.i32,
+                time_s: float):
+        for k in range(pos.shape[0]):
+            i = start + k
+            for d in ti.static(range(3)):
+                self.x[i][d] = pos[k, d]
+                self.v[i][d] = vel[k, d]
+            self.m[i] = mass[k]
+            self.rho[i] = density
+            self.p[i] = 0.0
+            self.phase[i] = phase
+            self.bead[i] = bead
+            self.born[i] = time_s
+
+
+@ti.kernel
+def _write_scalar(f: ti.template(), start: ti.i32, values: ti.types.ndarray()):
+    for k in range(values.shape[0]):
+        f[start + k] = values[k]
+
+
+@ti.kernel
+def _write_vector(f: ti.template(), start: ti.i32, values: ti.types.ndarray()):
+    for k in range(values.shape[0]):
+        for d in ti.static(range(3)):
+            f[start + k][d] = values[k, d]
+
+
+def write_field(f, start: int, values: np.ndarray) -> None:
+    """Write host values into a field from index ``start`` on."""
+    if len(values) == 0:
+        return
+    values = np.ascontiguousarray(values)
+    if values.ndim == 1:
+        _write_scalar(f, start, values)
+    else:
+        _write_vector(f, start, values)
+
+
+def _nbytes(f) -> int:
+    per = 8 if f.dtype in (ti.f64, ti.i64) else 4
+    n = f.n if hasattr(f, "n") else 1
+    return per * n

@@ -1,0 +1,64 @@
+"""Command line: the dry-run plan and one-paragraph errors (exit 2, no traceback)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from taichi_mex import bundled
+from taichi_mex.cli import main
+
+PLAN_KEYS = {"print_time_s", "extruding_time_s", "extruded_volume_mm3", "n_layers",
+             "selected_extruded_volume_mm3"}
+
+
+def test_dry_run_on_bundled_default(tmp_path, capsys):
+    assert main(["--dry-run", "--out", str(tmp_path)]) == 0
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert PLAN_KEYS <= plan.keys()
+    assert plan["gcode"].endswith(bundled.DEFAULT_GCODE)
+    assert plan["selected_extruded_volume_mm3"] == pytest.approx(plan["extruded_volume_mm3"])
+    assert "selected layers 1" in capsys.readouterr().out
+
+
+def test_dry_run_selection_is_reported(tmp_path):
+    gcode = bundled.gcode_path("block_3x3")
+    assert main([str(gcode), "--dry-run", "--out", str(tmp_path), "--layers", "2-3",
+                 "--region", "10:11.5,9:11"]) == 0
+    plan = json.loads((tmp_path / "plan.json").read_text())
+    assert plan["n_layers"] == 3 and plan["selected_layers"] == "2-3"
+    # 2 layers x 3 beads x half of each 3 mm bead
+    assert plan["selected_extruded_volume_mm3"] == pytest.approx(plan["extruded_volume_mm3"] / 3, rel=1e-6)
+    assert main([str(gcode), "--dry-run", "--out", str(tmp_path), "--until", "0.5"]) == 0
+    early = json.loads((tmp_path / "plan.json").read_text())
+    assert 0 < early["selected_extruded_volume_mm3"] < plan["selected_extruded_volume_mm3"]
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["missing.gcode"], "does not exist"),
+    (["--printer", "nosuchprinter"], "Unknown printer"),
+    (["--layers", "7"], "do not exist"),
+    (["--layers", "x"], "Cannot read layers"),
+    (["--region", "50:60,50:60"], "deposits nothing"),
+    (["--until", "-1"], "must be positive"),
+    (["--no-such-option"], "unrecognized arguments"),
+])
+def test_bad_input_is_one_paragraph(tmp_path, capsys, args, fragment):
+    assert main(args + ["--dry-run", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and fragment in err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("body, fragment", [
+    ("G1 X0 Y0 Z0.2\nG2 X5 Y5 I2 J2 E1\n", "arc"),
+    ("G20\nG1 X1 Y1 Z0.01 E0.1\n", "inch"),
+])
+def test_arc_and_inch_files_exit_2_without_traceback(tmp_path, body, fragment):
+    path = tmp_path / "bad.gcode"
+    path.write_text(body)
+    proc = subprocess.run([sys.executable, "-m", "taichi_mex", str(path), "--dry-run",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert fragment in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,75 @@
+"""Neighbour grid: counting sort + lists against brute force, edges, skins, dropped particles."""
+
+import numpy as np
+import pytest
+
+from taichi_mex import backend
+from taichi_mex.state import FLUID, INLET, PLATE, ParticleState
+
+
+def _brute(x, radius):
+    d = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+    np.fill_diagonal(d, np.inf)
+    return [np.sort(np.nonzero(row < radius)[0]) for row in d]
+
+
+def _build(points, phases, H, lo, hi, skin=0.0, origin=(0.0, 0.0, 0.0)):
+    from taichi_mex.grid import NeighbourGrid
+
+    st = ParticleState(len(points) + 8, origin_m=origin)
+    ids = st.add("test_id")
+    for k, ph in enumerate(phases):
+        st.append(points[k:k + 1], ph, 1.0)
+    ids.from_numpy(np.concatenate([np.arange(len(points)), np.zeros(8)]).astype(np.float32))
+    grid = NeighbourGrid(st, lo, hi, H, max_neighbours=200, skin_m=skin)
+    grid.rebuild()
+    return st, grid, ids
+
+
+@pytest.mark.parametrize("skin", [0.0, 0.3])
+def test_lists_match_brute_force_with_edges(skin):
+    backend.init("cpu", "f64")
+    rng = np.random.default_rng(3)
+    H = 0.1
+    lo, hi = np.zeros(3), np.array([0.5, 0.4, 0.3])
+    pts = rng.uniform(lo, hi, size=(400, 3))
+    # particles in the first and last cells, exactly on the domain faces and corners
+    pts = np.concatenate([pts, [[0, 0, 0], [0.5 - 1e-9, 0.4 - 1e-9, 0.3 - 1e-9], [0.25, 0, 0.15],
+                                [1e-6, 0.2, 0.3 - 1e-6], [0.49, 0.39, 0.29]]])
+    st, grid, ids = _build(pts, [FLUID] * len(pts), H, lo, hi, skin=skin * H, origin=(0.2, 0.1, 0.0))
+    assert st.n == len(pts)
+    order = ids.to_numpy()[: st.n].astype(int)  # original index of each sorted particle
+    x_sorted = st.numpy("position")
+    np.testing.assert_allclose(x_sorted, pts[order], atol=1e-12)
+    expect = _brute(x_sorted, H + skin * H)
+    got = grid.neighbour_lists_numpy()
+    for i in range(st.n):
+        np.testing.assert_array_equal(got[i], expect[i])
+
+
+def test_outside_and_nan_particles_are_dropped_but_nozzle_is_parked():
+    backend.init("cpu", "f32")
+    H = 0.1
+    lo, hi = np.zeros(3), np.ones(3) * 0.5
+    pts = np.array([[0.1, 0.1, 0.1], [0.12, 0.1, 0.1], [0.9, 0.1, 0.1], [np.nan, 0, 0], [2.0, 2.0, 2.0]])
+    st, grid, ids = _build(pts, [FLUID, FLUID, FLUID, FLUID, INLET], H, lo, hi)
+    assert st.n == 3  # two melt particles inside + the parked inlet particle
+    assert grid.lost_total == 2
+    phases = st.phase.to_numpy()[: st.n]
+    assert sorted(phases.tolist()) == [FLUID, FLUID, INLET]
+
+
+def test_idle_walls_get_no_list():
+    backend.init("cpu", "f64")
+    H = 0.1
+    lo, hi = np.zeros(3), np.array([1.0, 0.2, 0.2])
+    wall = np.stack([np.linspace(0.025, 0.975, 20), np.full(20, 0.05), np.full(20, 0.05)], axis=1)
+    melt = np.array([[0.05, 0.08, 0.05]])
+    pts = np.concatenate([wall, melt])
+    st, grid, ids = _build(pts, [PLATE] * 20 + [FLUID], H, lo, hi)
+    counts = grid.n_nbr.to_numpy()[: st.n]
+    x = st.numpy("position")
+    ph = st.phase.to_numpy()[: st.n]
+    near = (ph == PLATE) & (np.linalg.norm(x - melt[0], axis=1) < H)
+    far = (ph == PLATE) & ~near
+    assert np.all(counts[near] > 0) and np.all(counts[far] == 0)

@@ -1,0 +1,133 @@
+"""The print scene end to end: inlet mass bookkeeping, outputs, command line, Ctrl-C."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+
+import h5py
+import numpy as np
+import pytest
+
+from taichi_mex import bundled
+from taichi_mex.cli import main
+from taichi_mex.config import EDACOptions, Material, RunOptions
+from taichi_mex.scenes.print import PrintScene
+from taichi_mex.simulation import Simulation
+
+PAPER = dict(scheme="edac", spacing_mm=0.1, edac=EDACOptions(sound_speed_m_s=6.0), progress=False)
+PAPER_MELT = Material(viscosity_pa_s=0.1)
+SUMMARY_KEYS = {"particles_active", "deposited_volume_mm3", "commanded_volume_mm3",
+                "simulated_time_s", "wall_time_s", "steps", "particle_steps_per_s",
+                "density_error_mean", "density_error_max"}
+
+
+@pytest.fixture(scope="module")
+def paper_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("paper")
+    scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter")
+    sim = Simulation(scene, RunOptions(**PAPER, output_every_s=0.004), PAPER_MELT, out_dir=out)
+    summary = sim.run()
+    return sim, summary, out
+
+
+def test_deposited_mass_follows_commanded_volume(paper_run):
+    sim, s, out = paper_run
+    assert SUMMARY_KEYS <= s.keys()
+    slice_mm3 = sim.inlet.n_slice * (sim.run_opts.spacing_mm ** 3)
+    assert s["commanded_volume_mm3"] > 5 * slice_mm3
+    # the column releases whole lattice slices: at most half a slice ahead or behind
+    assert abs(s["deposited_volume_mm3"] - s["commanded_volume_mm3"]) <= 0.5 * slice_mm3 + 1e-9
+    assert s["particles_lost"] == 0
+    # and at every frame, not only at the end
+    sel = sim.scene.selection
+    with h5py.File(out / "particles.h5") as h5:
+        for name in h5["frames"]:
+            g = h5["frames"][name]
+            melt = int(np.sum(g["phase"][()] <= 1))
+            commanded = float(sel.volume_until([g.attrs["time_s"]])[0])
+            assert abs(melt * 1e-3 - commanded) <= 0.5 * slice_mm3 + 1e-9
+
+
+def test_hdf5_xdmf_and_snapshots(paper_run):
+    sim, s, out = paper_run
+    with h5py.File(out / "particles.h5") as h5:
+        config = json.loads(h5.attrs["config"])
+        assert config["run"]["scheme"] == "edac" and config["material"]["viscosity_pa_s"] == 0.1
+        units = json.loads(h5.attrs["units"])
+        assert units["pressure"] == "Pa" and units["position"] == "m"
+        last = h5["frames"][sorted(h5["frames"])[-1]]
+        for key in ("position", "velocity", "density", "pressure", "bead_id", "phase"):
+            assert key in last
+        assert h5["plate/position"].shape[1] == 3
+        times = [h5["frames"][k].attrs["time_s"] for k in sorted(h5["frames"])]
+        assert np.all(np.diff(times) > 0)
+    root = ET.parse(out / "particles.xdmf").getroot()
+    items = [d.text for d in root.iter("DataItem")]
+    assert len(items) >= 2 * len(times)
+    with h5py.File(out / "particles.h5") as h5:
+        for text in items:
+            assert text.split(":", 1)[1] in h5
+    pngs = sorted(p.name for p in (out / "snapshots").glob("*.png"))
+    assert pngs == ["final_section.png", "final_side.png", "final_top.png"]
+    assert all((out / "snapshots" / p).stat().st_size > 5000 for p in pngs)
+    assert json.loads((out / "summary.json").read_text())["steps"] == s["steps"]
+
+
+def test_layers_above_the_first_print_on_a_solid_substrate():
+    scene = PrintScene(bundled.gcode_path("block_3x3"), layers=[2], until_s=None)
+    plan = scene.plan(RunOptions(spacing_mm=0.05), Material())
+    solid = [b for b in plan.blocks if b.phase == 1]
+    assert len(solid) == 1
+    z = solid[0].position_m[:, 2]
+    assert z.min() > 0 and z.max() < 0.2e-3  # the first layer fills 0 < z < 0.2 mm
+    # its volume matches the first layer's commanded volume within the lattice's resolution
+    volume = len(z) * (0.05e-3) ** 3 * 1e9
+    layer1 = scene.trajectory.segment_volume_mm3[scene.trajectory.layer == 1].sum()
+    assert volume == pytest.approx(layer1, rel=0.1)
+
+
+def test_cli_run_writes_results(tmp_path, capsys):
+    args = [str(bundled.gcode_path("paper_bead")), "--preset", "paper", "--resolution", "0.12",
+            "--until", "0.335", "--out", str(tmp_path), "--quiet", "--no-snapshots"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "estimate:" in out and "particles" in out and "MiB" in out
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["steps"] > 0 and not summary["interrupted"]
+    assert (tmp_path / "particles.xdmf").exists() and (tmp_path / "plan.json").exists()
+
+
+def test_scene_too_large_for_memory_is_refused(tmp_path, capsys):
+    args = [str(bundled.gcode_path("block_3x3")), "--resolution", "0.002", "--out", str(tmp_path)]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "GiB" in err and "coarser" in err and "Traceback" not in err
+
+
+def test_ctrl_c_stops_cleanly_and_keeps_frames(tmp_path):
+    cmd = [sys.executable, "-m", "taichi_mex", str(bundled.gcode_path("paper_bead")), "--preset",
+           "paper", "--resolution", "0.1", "--output-every", "0.001", "--out", str(tmp_path),
+           "--quiet", "--no-snapshots"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    h5 = tmp_path / "particles.h5"
+    deadline = time.time() + 240
+    while time.time() < deadline:
+        if h5.exists():
+            try:
+                with h5py.File(h5, "r", locking=False) as f:
+                    if len(f["frames"]) >= 3:
+                        break
+            except (OSError, KeyError):
+                pass
+        time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    with h5py.File(h5, "r") as f:
+        assert len(f["frames"]) >= 3
