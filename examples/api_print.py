@@ -14,7 +14,8 @@ from taichi_mex.state import FLUID
 out = sys.argv[1] if len(sys.argv) > 1 else "api_print_out"
 
 # the seed paper's baseline on its single bead, stopped early to keep the example short
-scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter")
+scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter",
+                   nozzle_tip_outer_diameter_mm=None)
 run = RunOptions(scheme="edac", spacing_mm=0.1, progress=True)
 sim = Simulation(scene, run, Material(viscosity_pa_s=0.1), out_dir=out)
 print(sim.describe_estimate())

@@ -81,7 +81,7 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
     while t < end - 1e-15:
         dt, _ = sim.solver.time_step()
         dt = min(dt * sim.run_opts.dt_factor, end - t)
-        sim.solver.step(t, dt)
+        dt = sim.solver.step(t, dt)
         t += dt
         sim.time_s = t
         sim.steps += 1

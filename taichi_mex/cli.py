@@ -118,11 +118,16 @@ def run_simulation(sim, out_dir: Path, snapshot_every: float | None = None) -> d
     state = "interrupted (frames so far kept)" if summary.get("interrupted") else "done"
     print(f"{state}: {summary['steps']} steps, {summary['simulated_time_s']:.4g} s simulated in "
           f"{summary['wall_time_s']:.1f} s ({summary['particle_steps_per_s'] / 1e6:.2f} M particle-steps/s)")
+    for key in ("pressure_error_rel_mean", "shear_error_max_rel_U", "front_ratio_late",
+                "thermal_error_max_c"):
+        if key in summary:
+            print(f"{key}: {summary[key]:.4g}")
     if "commanded_volume_mm3" in summary:
         print(f"deposited {summary['deposited_volume_mm3']:.4f} mm^3 of "
               f"{summary['commanded_volume_mm3']:.4f} mm^3 commanded; density error mean "
               f"{100 * summary['density_error_mean']:.3f} %, max {100 * summary['density_error_max']:.3f} %")
-    print(f"results in {out_dir}: particles.h5, particles.xdmf, summary.json, snapshots/")
+    print(f"results in {out_dir}: particles.h5, particles.xdmf, summary.json"
+          + (", snapshots/" if sim.run_opts.snapshots else ""))
     return summary
 
 
@@ -146,11 +151,19 @@ def run_print(argv: list[str]) -> int:
     from .simulation import Simulation
 
     scene = PrintScene(gcode, args.printer, layers=layers, region_mm=region, until_s=args.until,
-                       settle_s=args.settle,
-                       nozzle_height="one_diameter" if preset.get("nozzle_height") == "one_diameter" else "gcode")
+                       settle_s=args.settle, **preset_scene_options(preset))
     sim = Simulation(scene, run, material, out_dir=args.out)
     summary = run_simulation(sim, args.out, args.snapshot_every)
     return 130 if summary.get("interrupted") else 0
+
+
+def preset_scene_options(preset: dict) -> dict:
+    out = {}
+    if preset.get("nozzle_height") == "one_diameter":
+        out["nozzle_height"] = "one_diameter"
+    if preset.get("nozzle_tip") is False:
+        out["nozzle_tip_outer_diameter_mm"] = None
+    return out
 
 
 def default_print_scene(args=None):
@@ -160,7 +173,38 @@ def default_print_scene(args=None):
     args = args or print_parser().parse_args([])
     run, material, preset = build_options(args)
     gcode = bundled.gcode_path(preset.get("gcode", bundled.DEFAULT_GCODE))
-    return PrintScene(gcode, args.printer), run, material
+    return PrintScene(gcode, args.printer, **preset_scene_options(preset)), run, material
+
+
+def run_scene(argv: list[str]) -> int:
+    from .config import apply_overrides
+    from .scenes import load_all
+    from .simulation import Simulation
+
+    scenes = load_all()
+    if not argv or argv[0] in ("-h", "--help"):
+        print("usage: python -m taichi_mex scene NAME [options] --out DIR\n\nscenes:")
+        for spec in scenes.values():
+            print(f"  {spec.name:14s} {spec.help}")
+        return 0
+    name = argv[0]
+    if name not in scenes:
+        raise UserInputError(f"Unknown scene '{name}'; choose one of {', '.join(scenes)}.")
+    spec = scenes[name]
+    p = _Parser(prog=f"python -m taichi_mex scene {name}", description=spec.help)
+    p.add_argument("--out", type=Path, default=Path(f"{name}_out"), help="output folder")
+    add_run_options(p)
+    spec.add_arguments(p)
+    args = p.parse_args(argv[1:])
+    scene, run_defaults, material_overrides = spec.build(args)
+    run, material, _ = build_options(args, scheme_default=run_defaults.get("scheme", "dfsph"))
+    explicit = {"spacing_mm": args.spacing_mm, "scheme": args.scheme}
+    defaults = {k: v for k, v in run_defaults.items() if explicit.get(k) is None}
+    run = apply_overrides(run, defaults)
+    material = apply_overrides(material, material_overrides)
+    sim = Simulation(scene, run, material, out_dir=args.out)
+    summary = run_simulation(sim, args.out, args.snapshot_every)
+    return 130 if summary.get("interrupted") else 0
 
 
 def run_bench(argv: list[str]) -> int:
@@ -206,8 +250,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if argv and argv[0] == "bench":
             return run_bench(argv[1:])
-        if argv and argv[0] in SUBCOMMANDS:
-            raise UserInputError(f"'{argv[0]}' is not available yet.")
+        if argv and argv[0] == "scene":
+            return run_scene(argv[1:])
+        if argv and argv[0] == "study":
+            from .study import main as study_main
+
+            return study_main(argv[1:])
+        if argv and argv[0] == "sweep":
+            from .sweep import main as sweep_main
+
+            return sweep_main(argv[1:])
         return run_print(argv)
     except UserInputError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 from .errors import UserInputError
 
-SCHEMES = ("edac", "dfsph")
+SCHEMES = ("edac", "dfsph", "static")
 VISCOSITY_MODELS = ("newtonian", "arrhenius", "cross_wlf")
 
 
@@ -161,6 +161,8 @@ class RunOptions:
         if self.scheme == "edac":
             # PySPH's usual Wendland choice with h = 1.3 dx, support 2h
             return self.kernel or "wendland_c2", self.support_factor or 2.6
+        if self.scheme == "static":  # heat only: Cleary & Monaghan used the cubic spline
+            return self.kernel or "cubic", self.support_factor or 2.0
         return self.kernel or "cubic", self.support_factor or 2.0
 
     def validate(self) -> None:
@@ -193,6 +195,7 @@ PAPER_PRESET = {
     "material": {"viscosity_pa_s": 0.1, "viscosity_model": "newtonian"},
     "gcode": "paper_bead.gcode",
     "nozzle_height": "one_diameter",
+    "nozzle_tip": False,
 }
 
 PRESETS = {"paper": PAPER_PRESET}

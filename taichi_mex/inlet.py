@@ -22,14 +22,13 @@ from .state import FLUID, INLET, NOZZLE
 @ti.data_oriented
 class NozzleInlet:
     def __init__(self, state, selection, spacing_m: float, support_radius_m: float,
-                 density_kg_m3: float, z_offset_m: float = 0.0, tip_outer_diameter_m: float | None = None,
-                 tip_temperature_hook=None):
+                 particle_mass_kg: float, z_offset_m: float = 0.0,
+                 tip_outer_diameter_m: float | None = None):
         self.state = state
         self.selection = selection
         self.traj = selection.trajectory
         self.dx = float(spacing_m)
-        self.rho0 = float(density_kg_m3)
-        self.particle_mass = self.rho0 * self.dx**3
+        self.particle_mass = float(particle_mass_kg)
         bore_r = 0.5e-3 * self.traj.printer.nozzle_diameter_mm
         self.slice_xy = disc_lattice(bore_r, self.dx)
         self.n_slice = len(self.slice_xy)
@@ -42,6 +41,7 @@ class NozzleInlet:
         self.released_count = 0
         self._ref = None  # nozzle tip and column travel at the last neighbour-list rebuild
         self._now = (np.zeros(3), 0.0)
+        self.speed = 0.0
         self.bead_intervals = self.traj.extruding_intervals()
         self._bead_starts = self.bead_intervals[:, 0].tolist()
         self.nozzle_particles = 0
@@ -80,7 +80,7 @@ class NozzleInlet:
             z = np.full((len(ring), 1), (k + 0.5) * self.dx)
             offsets.append(np.hstack([ring, z]))
         offsets = np.concatenate(offsets)
-        sl = self.state.append(pos + offsets, NOZZLE, self.particle_mass, vel, density=self.rho0,
+        sl = self.state.append(pos + offsets, NOZZLE, self.particle_mass, vel, density=0.0,
                                time_s=time_s)
         self._set_offsets(sl.start, offsets.astype(np.float64), -1)
         self.nozzle_particles = len(offsets)
@@ -105,10 +105,11 @@ class NozzleInlet:
             z = (k + 0.5) * self.dx - travel
             pts = np.hstack([self.slice_xy, np.zeros((self.n_slice, 1))])
             sl = self.state.append(pos + pts + np.array([0.0, 0.0, z]), INLET, self.particle_mass,
-                                   vel + np.array([0.0, 0.0, -w]), density=self.rho0, time_s=time_s)
+                                   vel + np.array([0.0, 0.0, -w]), density=0.0, time_s=time_s)
             self._set_offsets(sl.start, pts, k)
             self.slices_spawned += 1
         self._now = (pos, travel)
+        self.speed = float(np.linalg.norm(vel)) + w
         o = self.state.origin_m
         released = self._move(self.state.n, pos[0] - o[0], pos[1] - o[1], pos[2] - o[2], vel[0],
                               vel[1], vel[2], w, travel, self.bead_at(time_s), time_s)

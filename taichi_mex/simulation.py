@@ -112,6 +112,10 @@ class Simulation:
             h = 0.5 * H
             limits = {"cfl": run.edac.cfl * h / (run.edac.sound_speed_m_s + v),
                       "viscous": 0.125 * h * h / nu}
+        elif run.scheme == "static":
+            limits = {"max": self.plan.notes.get("max_dt_s", 1.0)}
+            if "thermal_dt_s" in self.plan.notes:
+                limits["thermal"] = self.plan.notes["thermal_dt_s"]
         else:
             limits = {"cfl": min(run.dfsph.cfl * 0.4 * run.spacing_m / max(v, 1e-9), run.dfsph.max_dt_s)}
         return min(limits.values()), limits
@@ -150,27 +154,27 @@ class Simulation:
         skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0) * self.kernel.H
         self.grid = NeighbourGrid(self.state, self.plan.domain_lo_m, self.plan.domain_hi_m,
                                   self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
-        self.state.on_append = lambda _sl: setattr(self.grid, "stale", True)
-        self.inlet = None
-        if self.plan.inlet is not None:
-            from .inlet import NozzleInlet
-
-            spec = self.plan.inlet
-            self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H,
-                                     self.material.density_kg_m3, spec.z_offset_m,
-                                     spec.tip_outer_diameter_m)
+        self.state.on_append.append(lambda _sl, _ph: setattr(self.grid, "stale", True))
         from .physics.surface import SurfaceDetector
 
         self.surface = SurfaceDetector(self)
         self.solver = SOLVERS[run.scheme](self)
         self.surface.attach(self.grid, self.kernel)
-        self.mass = self.material.density_kg_m3 * dx**3
+        # DFSPH calibrates the particle volume so a rest lattice has rho = rho0 exactly
+        self.mass = getattr(self.solver, "particle_mass", self.material.density_kg_m3 * dx**3)
+        self.inlet = None
+        if self.plan.inlet is not None:
+            from .inlet import NozzleInlet
+
+            spec = self.plan.inlet
+            self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H, self.mass,
+                                     spec.z_offset_m, spec.tip_outer_diameter_m)
         for block in self.plan.blocks:
             sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
                                    density=self.material.density_kg_m3, bead=block.bead,
                                    time_s=self.plan.t_start_s)
-            if self.thermal is not None:
-                self.thermal.initialise(sl, block)
+            if self.thermal is not None and block.temperature_c is not None:
+                self.thermal.set_temperature(sl, block.temperature_c)
         if self.inlet is not None:
             self.inlet.build_tip(self.plan.t_start_s)
         self._built = True
@@ -183,9 +187,35 @@ class Simulation:
         released = self.inlet.advance(t)
         if released:
             self.grid.stale = True  # new melt needs full neighbour lists
-            if self.thermal is not None:
-                self.thermal.on_release()
         return released
+
+    def heat_step(self, dt: float) -> None:
+        """Advance temperature by dt (solvers call this where neighbour lists and densities
+        are current); solidify cooled melt."""
+        if self.thermal is not None:
+            self.thermal.step(dt)
+
+    def refresh_lists(self) -> None:
+        """Re-sort and rebuild the neighbour lists now."""
+        lost = self.grid.rebuild()
+        if self.inlet is not None:
+            self.inlet.mark_rebuilt()
+        if lost:
+            self.lost_particles += lost
+        if self.grid.overflowed():
+            raise SimulationDiverged(
+                f"At t = {self.time_s:.6g} s, {self.grid.overflowed()} particles had more than "
+                f"{self.grid.max_neighbours} neighbours: the melt has clumped far beyond its "
+                "rest spacing. " + self._likely_cause())
+        self.viscosity.update(self.state.n)
+
+    def boundary_speed(self) -> float:
+        """Fastest moving wall (the nozzle and the melt sliding down its bore), m/s."""
+        return self.inlet.speed if self.inlet is not None and not self._inlet_retired else 0.0
+
+    def extra_dt_limits(self) -> dict:
+        """Time-step limits of optional physics (heat), s."""
+        return self.thermal.dt_limits() if self.thermal is not None else {}
 
     def refresh(self, t: float, fluid_moved_m: float = np.inf) -> None:
         """Move boundaries to time t; re-sort and rebuild the neighbour lists when they may be
@@ -197,17 +227,7 @@ class Simulation:
         if not self.grid.needs_rebuild(moved):
             self.viscosity.update(self.state.n)
             return
-        lost = self.grid.rebuild()
-        if self.inlet is not None:
-            self.inlet.mark_rebuilt()
-        if lost:
-            self.lost_particles += lost
-        if self.grid.overflowed():
-            raise SimulationDiverged(
-                f"At t = {t:.6g} s, {self.grid.overflowed()} particles had more than "
-                f"{self.grid.max_neighbours} neighbours: the melt has clumped far beyond its "
-                "rest spacing. " + self._likely_cause())
-        self.viscosity.update(self.state.n)
+        self.refresh_lists()
 
     def _likely_cause(self) -> str:
         run = self.run_opts
@@ -248,6 +268,7 @@ class Simulation:
         particle_steps = 0
         dt_limits = {}
         speed_limit = run.max_speed_m_s or max(1.0, 20.0 * self.plan.notes.get("speed_scale_m_s", 0.1))
+        monitor = getattr(self.scene, "monitor", None)
         self.solver.start(t)
         try:
             while True:
@@ -260,11 +281,11 @@ class Simulation:
                 if t >= t_end - 1e-12:
                     break
                 dt, dt_limits = self.solver.time_step()
-                dt = min(dt * run.dt_factor, t_end - t)
+                dt = _fit_step(dt * run.dt_factor, t_end - t)
                 if not np.isfinite(dt) or dt <= 0:
                     raise SimulationDiverged(f"At t = {t:.6g} s the time step became {dt}. "
                                              + self._likely_cause())
-                self.solver.step(t, dt)
+                dt = self.solver.step(t, dt)
                 t += dt
                 self.time_s = t
                 self.steps += 1
@@ -272,6 +293,8 @@ class Simulation:
                 if self.inlet is not None and not self._inlet_retired and t > self.plan.inlet.selection.t_end_s:
                     self.inlet.retire()
                     self._inlet_retired = True
+                if monitor is not None:
+                    monitor(self, t)
                 speed = self.solver.max_speed()
                 if speed > speed_limit:
                     self.diverged(t, f"the fastest melt particle moves at {speed:.3g} m/s "
@@ -338,6 +361,8 @@ class Simulation:
 
     def _finish_outputs(self, summary: dict) -> None:
         (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+        if hasattr(self.scene, "write_outputs"):
+            self.scene.write_outputs(self, self.out_dir)
         if self.run_opts.snapshots:
             self.snapshots_or_warn("final")
 
@@ -410,6 +435,15 @@ class Simulation:
         if hasattr(self.scene, "analyse"):
             out.update(self.scene.analyse(self))
         return out
+
+
+def _fit_step(dt: float, remaining: float) -> float:
+    """Shorten dt so the remaining time splits into equal steps: no sliver of a last step
+    (an implicit pressure solve would correct a whole step's density error in it)."""
+    if remaining <= dt:
+        return remaining
+    steps = np.ceil(remaining / dt - 1e-9)
+    return remaining / steps if steps <= 3 else dt
 
 
 def _progress_bar(enabled: bool, span: float, t0: float):

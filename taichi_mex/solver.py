@@ -2,7 +2,11 @@
 
 import numpy as np
 
+from .backend import ti
+from .physics.dfsph import DFSPH
 from .physics.edac import EDAC
+from .physics.viscosity_weiler2018 import ImplicitViscosity
+from .state import FLUID
 
 
 class EDACSolver:
@@ -35,13 +39,15 @@ class EDACSolver:
         nu = self.sim.viscosity.max_value() / self.sim.material.density_kg_m3
         return self.edac.time_step(nu)
 
-    def step(self, t: float, dt: float) -> None:
+    def step(self, t: float, dt: float) -> float:
         e = self.edac
         moved = e.predict(self.sim.state.n, 0.5 * dt, self.t_eval)
         self.sim.refresh(t + 0.5 * dt, moved)
         self.t_eval = t + 0.5 * dt
         self._check(e.evaluate(dt, self.t_eval), t + dt)
+        self.sim.heat_step(dt)  # lists and densities are those of the midpoint state
         self.sim.move_boundaries(t + dt)
+        return dt
 
     def _check(self, nonfinite: int, t: float) -> None:
         if nonfinite:
@@ -54,7 +60,164 @@ class EDACSolver:
         return {}
 
 
-SOLVERS = {"edac": EDACSolver}
+@ti.data_oriented
+class DFSPHSolver:
+    """Bender & Koschier (2017), Alg. 1, with Weiler et al. (2018) implicit viscosity:
+
+    1. neighbour lists, densities rho_i and factors alpha_i at x_n
+    2. divergence solve: make v_n divergence free                         (Alg. 2)
+    3. non-pressure forces: v* = v_visc + dt g, (I - dt/rho A_visc) v_visc = v_n (Weiler 2018;
+       gravity stays out of the viscous solve: at rest it must be carried by pressure, not
+       by friction on no-slip walls, which splitting the two would otherwise create)
+    4. constant-density solve on v*: v_{n+1}                                (Alg. 3)
+    5. x_{n+1} = x_n + dt v_{n+1}; the nozzle moves to t + dt
+    """
+
+    name = "dfsph"
+    list_skin = 0.0
+
+    def __init__(self, sim):
+        self.sim = sim
+        run = sim.run_opts
+        self.opts = run.dfsph
+        rho0 = sim.material.density_kg_m3
+        self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m)
+        self.particle_mass = self.dfsph.mass
+        self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
+        self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
+                                      self.particle_mass, rho0, run.spacing_m, run.dfsph.viscosity_tolerance,
+                                      run.dfsph.viscosity_max_iterations, run.dfsph.no_slip)
+        self.vmax = 0.0
+        self.dx = run.spacing_m
+        self.halvings = 0
+        cap = sim.state.capacity
+        self.saved_v = ti.Vector.field(3, float, shape=cap)
+        self.saved_k = ti.Vector.field(2, float, shape=cap)
+        self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
+        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0}
+        self.worst = {"density_error": 0.0, "viscosity_residual": 0.0}
+        self.last = {}
+
+    def start(self, t: float) -> None:
+        pass
+
+    def time_step(self) -> tuple[float, dict]:
+        o = self.opts
+        speed = max(self.vmax, self.sim.boundary_speed(), 1e-6)
+        # a scene of slow creeping flow may allow longer steps than a print
+        max_dt = self.sim.plan.notes.get("max_dt_s", o.max_dt_s)
+        limits = {"cfl": o.cfl * 0.4 * self.sim.run_opts.spacing_m / speed, "max": max_dt}
+        limits.update(self.sim.extra_dt_limits())
+        return min(limits.values()), limits
+
+    @ti.kernel
+    def _gravity(self, n: ti.i32, dt: float):
+        for i in range(n):
+            if self.sim.state.phase[i] == FLUID:
+                self.sim.state.v[i] += dt * self.g
+
+    #: a step whose pressure solve leaves melt moving more than this many spacings is
+    #: redone with half the time step (the CFL bound uses the velocities before the solve)
+    max_travel = 0.5
+    retries = 4
+
+    @ti.kernel
+    def _save(self, n: ti.i32):
+        for i in range(n):
+            self.saved_v[i] = self.sim.state.v[i]
+            self.saved_k[i] = ti.Vector([self.dfsph.kappa[i], self.dfsph.kappa_v[i]])
+            self.saved_vdiff[i] = self.visc.vdiff[i]
+
+    @ti.kernel
+    def _restore(self, n: ti.i32):
+        for i in range(n):
+            self.sim.state.v[i] = self.saved_v[i]
+            self.dfsph.kappa[i] = self.saved_k[i][0]
+            self.dfsph.kappa_v[i] = self.saved_k[i][1]
+            self.visc.vdiff[i] = self.saved_vdiff[i]
+
+    def step(self, t: float, dt: float) -> float:
+        sim = self.sim
+        sim.refresh_lists()
+        n = sim.state.n
+        d = self.dfsph
+        d.prepare(n)
+        sim.heat_step(dt)  # at x_n, with this step's lists and densities
+        self._save(n)
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self._restore(n)
+                dt *= 0.5
+                self.halvings += 1
+            if self.opts.divergence_solve:
+                iv, _ = d.divergence_solve(dt)
+                self.totals["divergence_iterations"] += iv
+            ik, res = self.visc.solve(dt)
+            self._gravity(n, dt)
+            ip, err = d.density_solve(dt)
+            self.totals["viscosity_iterations"] += ik
+            self.totals["density_iterations"] += ip
+            vmax = float(d.max_fluid_speed(n))
+            if vmax * dt <= self.max_travel * self.dx or attempt == self.retries:
+                break
+        self.worst["viscosity_residual"] = max(self.worst["viscosity_residual"], res)
+        self.worst["density_error"] = max(self.worst["density_error"], err)
+        out = d.finish(n, dt)
+        self.vmax = float(out[0])
+        if out[1] > 0:
+            sim.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
+                                 "the pressure solve")
+        self.last = {"density_iterations": ip, "viscosity_iterations": ik, "density_error": err,
+                     "viscosity_residual": res, "dt": dt}
+        sim.move_boundaries(t + dt)
+        return dt
+
+    def max_speed(self) -> float:
+        return self.vmax
+
+    def diagnostics(self) -> dict:
+        steps = max(self.sim.steps, 1)
+        return {
+            "pressure_iterations_per_step": self.totals["density_iterations"] / steps,
+            "divergence_iterations_per_step": self.totals["divergence_iterations"] / steps,
+            "viscosity_iterations_per_step": self.totals["viscosity_iterations"] / steps,
+            "pressure_error_worst": self.worst["density_error"],
+            "viscosity_residual_worst": self.worst["viscosity_residual"],
+            "time_step_halvings": self.halvings,
+        }
+
+
+class StaticSolver:
+    """No flow: particles stay where they are and only the enabled physics (heat) advances.
+    For scenes such as the aluminium beam, whose solid does not move."""
+
+    name = "static"
+    list_skin = 0.0
+
+    def __init__(self, sim):
+        self.sim = sim
+        self._listed = False
+
+    def start(self, t: float) -> None:
+        self.sim.refresh_lists()
+
+    def time_step(self) -> tuple[float, dict]:
+        limits = dict(self.sim.extra_dt_limits())
+        limits.setdefault("max", self.sim.plan.notes.get("max_dt_s", 1.0))
+        return min(limits.values()), limits
+
+    def step(self, t: float, dt: float) -> float:
+        self.sim.heat_step(dt)
+        return dt
+
+    def max_speed(self) -> float:
+        return 0.0
+
+    def diagnostics(self) -> dict:
+        return {}
+
+
+SOLVERS = {"edac": EDACSolver, "dfsph": DFSPHSolver, "static": StaticSolver}
 
 
 def register(name: str, cls) -> None:

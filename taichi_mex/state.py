@@ -42,7 +42,7 @@ class ParticleState:
         self.origin_m = np.asarray(origin_m, dtype=np.float64)
         self.n = 0  # live particles (host copy, updated by the grid)
         self.frozen = False  # set by the grid's first sort: no fields may be added after it
-        self.on_append = None  # callback(slice): the grid marks its lists stale
+        self.on_append: list = []  # callbacks(slice, phase): the grid marks its lists stale, heat sets T
         self._fields: dict[str, object] = {}
         self.x = self.add("position", 3)  #: m, relative to origin_m
         self.v = self.add("velocity", 3)  #: m/s
@@ -96,8 +96,9 @@ class ParticleState:
                          np.ascontiguousarray(vel, dtype=dt), np.ascontiguousarray(mass),
                          float(density), int(phase), int(bead), float(time_s))
         self.n += k
-        if self.on_append is not None and k:
-            self.on_append(sl)
+        if k:
+            for callback in self.on_append:
+                callback(sl, int(phase))
         return sl
 
 

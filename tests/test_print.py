@@ -27,7 +27,8 @@ SUMMARY_KEYS = {"particles_active", "deposited_volume_mm3", "commanded_volume_mm
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("paper")
-    scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter")
+    scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter",
+                       nozzle_tip_outer_diameter_mm=None)
     sim = Simulation(scene, RunOptions(**PAPER, output_every_s=0.004), PAPER_MELT, out_dir=out)
     summary = sim.run()
     return sim, summary, out

@@ -15,11 +15,15 @@ from .base import InletSpec, ParticleBlock, ScenePlan
 
 
 class PrintScene:
+    """``nozzle_tip_outer_diameter_mm``: the flat annulus around the bore that presses the
+    bead (a 0.4 mm E3D/Prusa nozzle has a ~1 mm flat); None leaves the bore column alone,
+    as in the seed paper, whose nozzle therefore had to sit one diameter up."""
+
     name = "print"
 
     def __init__(self, gcode, printer: str = "prusa_mini", layers=None, region_mm=None,
                  until_s: float | None = None, settle_s: float = 0.0,
-                 nozzle_tip_outer_diameter_mm: float | None = None,
+                 nozzle_tip_outer_diameter_mm: float | None = 1.0,
                  nozzle_height: str = "gcode"):
         self.gcode = gcode
         self.printer = printer

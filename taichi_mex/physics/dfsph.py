@@ -1,0 +1,400 @@
+"""DFSPH: divergence-free SPH (Bender & Koschier, SCA 2015; IEEE TVCG 23(3), 2017).
+
+Each step makes two implicit pressure corrections of the velocity,
+
+    v_i <- v_i - dt G(k)_i,   G(k)_i = sum_j V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib
+
+(k_i = p_i / rho_i * rho0 / rho_i: the symmetric SPH pressure gradient with Akinci et al.'s
+(2012) pressure mirroring at walls), chosen so that the discrete divergence
+D(u)_i = sum_j V_j (u_i - u_j) . grad W_ij + sum_b V_b u_i . grad W_ib of the correction
+cancels a source:
+
+* divergence solve (Alg. 2): D(G k) = d / dt with d = D(v) (velocity made divergence free);
+* constant-density solve (Alg. 3): D(G k) = (rho*_i / rho0 - 1) / dt^2 with the predicted
+  density rho*_i = rho_i + dt rho0 D(v) (positions made incompressible).
+
+D and G are adjoint, so A = D G is symmetric positive semi-definite. The papers relax it
+with Jacobi sweeps using the diagonal factor alpha_i = 1 / (sum_j |V_j grad W_ij|^2 +
+|sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2), clamping both sources to compression so that
+free-surface particles (partial kernel support) are not pulled back. Inside the melt that
+clamp lets the viscous flow open voids that nothing closes, and with tension allowed Jacobi
+may oscillate; so we solve the same system by conjugate gradients preconditioned with
+alpha, clamping only at the free surface (particles whose kernel-weighted neighbourhood
+centre is offset by more than 0.15 H, or with < 20 neighbours, and whose source is an
+expansion: their k is held at 0). Both solves are warm-started with half of the previous
+step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
+mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
+
+Walls here (plate, nozzle, solidified melt, the melt column in the bore) are lattices at
+the fluid's spacing and at least one support radius thick, so every wall particle stands
+for one lattice cell: V_b = V0. Akinci's adaptive V_b = 1 / sum_k W_bk is meant for
+single-layer surface samplings; on a thick wall it counts the wall's top layers up to twice.
+Particle volumes are calibrated so that a rest lattice has rho = rho0 exactly.
+"""
+
+import numpy as np
+
+from ..backend import ti
+from ..reduce import BlockSum
+from ..state import FLUID
+
+
+def rest_volume(kernel, spacing_m: float) -> float:
+    """1 / sum_j W_ij on the cubic lattice: the volume that makes a rest lattice exact."""
+    m = int(np.ceil(kernel.H / spacing_m)) + 1
+    r = np.arange(-m, m + 1) * spacing_m
+    X, Y, Z = np.meshgrid(r, r, r, indexing="ij")
+    d = np.sqrt(X**2 + Y**2 + Z**2)
+    return float(1.0 / kernel.W_np(d).sum())
+
+
+@ti.data_oriented
+class DFSPH:
+    #: CG iterations per kernel launch (unrolled; iterations after convergence do no work)
+    chunk = 4
+    #: the density solve corrects compression only (as in the paper): with tension allowed
+    #: inside the melt it blew up in every variant we measured (CG and Jacobi, omega 0.5-1,
+    #: cubic and Wendland kernels); the divergence solve may pull inside the melt
+    density_compression_only = True
+    #: 'cg' (default) or 'jacobi' (the paper's relaxed sweeps, omega 0.5)
+    method = "cg"
+    omega = 0.5
+
+    def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float):
+        self.state = state
+        self.grid = grid
+        self.K = kernel
+        self.opts = opts
+        self.rho0 = float(rho0)
+        self.V0 = rest_volume(kernel, spacing_m)
+        self.mass = self.rho0 * self.V0
+        self.alpha = state.add("dfsph_factor")
+        self.kappa = state.add("dfsph_kappa")  # summed k of the density solve (pressure-like)
+        self.kappa_v = state.add("dfsph_kappa_v")  # summed k of the divergence solve, times dt
+        self.n_count = state.add("neighbour_count", dtype=ti.i32)
+        self.surface = state.add("dfsph_free_surface", dtype=ti.i32)
+        cap = state.capacity
+        self.b = ti.field(float, shape=cap)  # source (scaled to the system's right-hand side)
+        self.active = ti.field(ti.i32, shape=cap)
+        self.k = ti.field(float, shape=cap)  # this solve's k
+        self.r = ti.field(float, shape=cap)
+        self.z = ti.field(float, shape=cap)
+        self.p = ti.field(float, shape=cap)
+        self.Ap = ti.field(float, shape=cap)
+        self.Gp = ti.Vector.field(3, float, shape=cap)
+        self.term = ti.field(float, shape=cap)
+        self.sum = BlockSum(cap)
+        # rz, cg alpha, beta, mean error, iterations, done, n_fluid, error scale
+        self.s = ti.field(float, shape=8)
+        self.stats = {"density_iterations": 0, "divergence_iterations": 0}
+
+    # ------------------------------------------------------------------ per step
+    @ti.func
+    def _density_task(self, i, j, xij, acc: ti.template()):
+        w = self.K.W(xij.norm())
+        acc[0] += self.V0 * w
+        acc[1] += 1.0
+        if self.state.phase[j] != FLUID:
+            acc[5] += 1.0
+        for d in ti.static(range(3)):
+            acc[2 + d] -= w * xij[d]  # sum_j W_ij (x_j - x_i)
+
+    @ti.func
+    def _factor_task(self, i, j, xij, acc: ti.template()):
+        gV = self.V0 * self.K.F(xij.norm()) * xij
+        if self.state.phase[j] == FLUID:
+            acc[0] += gV.dot(gV)
+        for d in ti.static(range(3)):
+            acc[1 + d] += gV[d]
+
+    @ti.kernel
+    def prepare(self, n: ti.i32):
+        """Densities, neighbour counts, free-surface flags and alpha at x_n."""
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
+                self.grid.for_each_neighbour(i, self._density_task, acc)
+                self.state.rho[i] = self.rho0 * acc[0]
+                self.n_count[i] = ti.cast(acc[1], ti.i32)
+                offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
+                # no tension at the free surface, nor against walls (it would glue melt to
+                # the moving nozzle)
+                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0
+                self.surface[i] = 1 if no_tension else 0
+                f = ti.Vector([0.0, 0.0, 0.0, 0.0])
+                self.grid.for_each_neighbour(i, self._factor_task, f)
+                s = f[0] + f[1] * f[1] + f[2] * f[2] + f[3] * f[3]
+                self.alpha[i] = 1.0 / s if s > 0.0 else 0.0
+            else:
+                self.state.rho[i] = self.rho0
+                self.alpha[i] = 0.0
+
+    # ------------------------------------------------------------------ operators
+    @ti.func
+    def _grad_task(self, i, j, xij, acc: ti.template()):
+        g = self.V0 * self.K.F(xij.norm()) * xij
+        if self.state.phase[j] == FLUID:
+            acc += (self.p[i] + self.p[j]) * g
+        else:
+            acc += self.p[i] * g
+
+    @ti.func
+    def _div_task(self, i, j, xij, acc: ti.template()):
+        g = self.V0 * self.K.F(xij.norm()) * xij
+        if self.state.phase[j] == FLUID:
+            acc += (self.Gp[i] - self.Gp[j]).dot(g)
+        else:
+            acc += self.Gp[i].dot(g)
+
+    @ti.func
+    def _vdiv_task(self, i, j, xij, acc: ti.template()):
+        g = self.V0 * self.K.F(xij.norm()) * xij
+        acc += (self.state.v[i] - self.state.v[j]).dot(g)  # walls move: their v is set
+
+    @ti.func
+    def _apply(self, n, guard):
+        """Gp = G(p) for fluid, Ap = D(Gp) on active particles."""
+        for i in range(n):
+            if guard == 0:
+                g = ti.Vector([0.0, 0.0, 0.0])
+                if self.state.phase[i] == FLUID:
+                    self.grid.for_each_neighbour(i, self._grad_task, g)
+                self.Gp[i] = g
+        for i in range(n):
+            if guard == 0:
+                a = 0.0
+                if self.active[i] == 1:
+                    self.grid.for_each_neighbour(i, self._div_task, a)
+                self.Ap[i] = a
+
+    @ti.func
+    def _source(self, n, dt, density: ti.template()):
+        """b = (rho*/rho0 - 1)/dt^2 or D(v)/dt; fix the active set; term = |b| for the error."""
+        for i in range(n):
+            if self.s[5] != 0.0:
+                continue
+            b = 0.0
+            act = 0
+            if self.state.phase[i] == FLUID:
+                div = 0.0
+                self.grid.for_each_neighbour(i, self._vdiv_task, div)
+                if ti.static(density):
+                    b = (self.state.rho[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
+                else:
+                    b = div / dt
+                act = 1
+                if (self.surface[i] == 1 or ti.static(self.density_compression_only and density)) and b <= 0.0:
+                    act = 0  # free surface opening up: no tension there
+                    b = 0.0
+            self.b[i] = b
+            self.active[i] = act
+            self.term[i] = ti.abs(b)
+
+    @ti.func
+    def _kick(self, n, dt, kfield: ti.template()):
+        """v -= dt G(kfield) for fluid (kfield copied into p first)."""
+        for i in range(n):
+            self.p[i] = kfield[i]
+        self._apply(n, 0)
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                self.state.v[i] -= dt * self.Gp[i]
+
+    # ------------------------------------------------------------------ CG
+    @ti.kernel
+    def _start(self, n: ti.i32, dt: float, density: ti.template(), scale: float):
+        """Warm start with half of last step's k, then r0 = b, z0 = alpha r0, p0 = z0."""
+        self._source(n, dt, density)
+        for i in range(n):
+            k = 0.0
+            if self.active[i] == 1:
+                if ti.static(density):
+                    k = 0.5 * self.kappa[i]
+                else:
+                    k = 0.5 * self.kappa_v[i] / dt
+            self.k[i] = k
+        self._kick(n, dt, self.k)
+        self._source(n, dt, density)
+        for i in range(n):
+            if ti.static(density):
+                self.kappa[i] = self.k[i]
+            else:
+                self.kappa_v[i] = self.k[i]
+            r = self.b[i] if self.active[i] == 1 else 0.0
+            self.r[i] = r
+            z = self.alpha[i] * r
+            self.z[i] = z
+            self.p[i] = z
+            self.term[i] = r * z
+        self.sum.sum(self.term, n)
+        self.s[0] = self.sum.total[None]
+        for i in range(n):
+            self.term[i] = ti.abs(self.r[i])
+        self.sum.sum(self.term, n)
+        self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
+
+    @ti.kernel
+    def _iterate(self, n: ti.i32, dt: float, density: ti.template(), tol: float, scale: float,
+                 min_iter: ti.i32) -> ti.types.vector(2, float):
+        for _ in ti.static(range(self.chunk)):
+            self._apply(n, ti.cast(self.s[5], ti.i32))
+            for i in range(n):
+                self.term[i] = self.p[i] * self.Ap[i]
+            self.sum.sum(self.term, n)
+            self._alpha_step()
+            for i in range(n):
+                if self.s[5] == 0.0:
+                    a = self.s[1]
+                    if self.state.phase[i] == FLUID:
+                        self.state.v[i] -= dt * a * self.Gp[i]  # G is linear: apply as we go
+                    if ti.static(density):
+                        self.kappa[i] += a * self.p[i]
+                    else:
+                        self.kappa_v[i] += a * self.p[i]
+                    r = self.r[i] - a * self.Ap[i]
+                    self.r[i] = r
+                    self.z[i] = self.alpha[i] * r
+                    self.term[i] = ti.abs(r)
+            self.sum.sum(self.term, n)
+            self._error(tol, scale, min_iter)
+            for i in range(n):
+                self.term[i] = self.r[i] * self.z[i]
+            self.sum.sum(self.term, n)
+            self._beta()
+            for i in range(n):
+                if self.s[5] == 0.0:
+                    self.p[i] = self.z[i] + self.s[2] * self.p[i]
+        return ti.Vector([self.s[3], self.s[4]])
+
+    @ti.kernel
+    def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: float, scale: float,
+                min_iter: ti.i32) -> ti.types.vector(2, float):
+        """Bender & Koschier's relaxed Jacobi sweeps (k = omega alpha b), `chunk` per launch."""
+        for _ in ti.static(range(self.chunk)):
+            for i in range(n):
+                if self.s[5] == 0.0:
+                    k = self.omega * self.alpha[i] * self.b[i]
+                    self.p[i] = k
+                    if ti.static(density):
+                        self.kappa[i] += k
+                    else:
+                        self.kappa_v[i] += k
+            for i in range(n):
+                if self.s[5] == 0.0:
+                    g = ti.Vector([0.0, 0.0, 0.0])
+                    if self.state.phase[i] == FLUID:
+                        self.grid.for_each_neighbour(i, self._grad_task, g)
+                    self.Gp[i] = g
+            for i in range(n):
+                if self.s[5] == 0.0 and self.state.phase[i] == FLUID:
+                    self.state.v[i] -= dt * self.Gp[i]
+            self._source(n, dt, density)
+            self.sum.sum(self.term, n)
+            self._count_and_check(tol, scale, min_iter)
+        return ti.Vector([self.s[3], self.s[4]])
+
+    @ti.func
+    def _count_and_check(self, tol, scale, min_iter):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.s[5] == 0.0:
+                self.s[4] += 1.0
+                self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
+                if self.s[3] <= tol and self.s[4] >= min_iter:
+                    self.s[5] = 1.0
+
+    @ti.func
+    def _alpha_step(self):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.s[5] == 0.0:
+                pAp = self.sum.total[None]
+                self.s[1] = self.s[0] / pAp if pAp > 0.0 else 0.0
+                self.s[4] += 1.0
+
+    @ti.func
+    def _error(self, tol, scale, min_iter):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.s[5] == 0.0:
+                self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
+                if self.s[3] <= tol and self.s[4] >= min_iter:
+                    self.s[5] = 1.0
+
+    @ti.func
+    def _beta(self):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.s[5] == 0.0:
+                rz = self.sum.total[None]
+                self.s[2] = rz / self.s[0] if self.s[0] > 0.0 else 0.0
+                self.s[0] = rz
+
+    # ------------------------------------------------------------------ solves
+    def _solve(self, dt: float, density: bool, tol: float, min_iter: int, max_iter: int) -> tuple[int, float]:
+        n = self.state.n
+        self.s.fill(0.0)
+        self._count_fluid(n)
+        # mean |residual| times dt^2 (density) or dt (divergence) = mean predicted error
+        scale = dt * dt if density else dt
+        self._start(n, dt, density, scale)
+        err = float(self.s[3])
+        iters = 0
+        iterate = self._jacobi if self.method == "jacobi" else self._iterate
+        if err > tol or min_iter > 0:
+            while iters < max_iter:
+                out = iterate(n, dt, density, tol, scale, min_iter)
+                err, iters = float(out[0]), int(out[1])
+                if float(self.s[5]) > 0:
+                    break
+        return iters, err
+
+    def divergence_solve(self, dt: float) -> tuple[int, float]:
+        o = self.opts
+        iters, err = self._solve(dt, False, o.max_divergence_error, 0, o.max_iterations)
+        self.stats["divergence_iterations"] = iters
+        return iters, err
+
+    def density_solve(self, dt: float) -> tuple[int, float]:
+        o = self.opts
+        iters, err = self._solve(dt, True, o.max_density_error, o.min_iterations, o.max_iterations)
+        self.stats["density_iterations"] = iters
+        return iters, err
+
+    @ti.kernel
+    def _count_fluid(self, n: ti.i32):
+        for i in range(n):
+            self.term[i] = 1.0 if self.state.phase[i] == FLUID else 0.0
+        self.sum.sum(self.term, n)
+        self.s[6] = self.sum.total[None]
+
+    @ti.kernel
+    def max_fluid_speed(self, n: ti.i32) -> float:
+        vmax = 0.0
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                ti.atomic_max(vmax, self.state.v[i].norm())
+        return vmax
+
+    @ti.kernel
+    def finish(self, n: ti.i32, dt: float) -> ti.types.vector(2, float):
+        """Pressure for output (p = kappa rho^2 / rho0), the divergence stiffness made
+        dt-independent for the next warm start, fluid moved; returns (max fluid speed,
+        non-finite fluid particles).
+
+        The density solve's k is pressure-like (the compression a step creates scales with
+        dt^2); the divergence solve's k scales with 1/dt, so it is stored times dt."""
+        vmax = 0.0
+        bad = 0.0
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                rho = self.state.rho[i]
+                self.state.p[i] = self.kappa[i] * rho * rho / self.rho0
+                self.kappa_v[i] *= dt
+                self.state.x[i] += dt * self.state.v[i]
+                s = self.state.v[i].norm()
+                if ti.math.isnan(s) or ti.math.isinf(s):
+                    bad += 1.0
+                else:
+                    ti.atomic_max(vmax, s)
+        return ti.Vector([vmax, bad])

@@ -1,0 +1,34 @@
+"""Deterministic parallel sums: fixed blocks summed in parallel, then the blocks in order.
+
+Float atomics would make every solver's convergence test (and so its iteration count and
+result) depend on thread timing; block sums give the same bits on every CPU run.
+"""
+
+import math
+
+from .backend import ti
+
+
+@ti.data_oriented
+class BlockSum:
+    def __init__(self, capacity: int, block: int = 256):
+        self.block = int(block)
+        self.n_blocks = max(1, math.ceil(capacity / self.block))
+        self.partial = ti.field(float, shape=self.n_blocks)
+        self.total = ti.field(float, shape=())
+
+    @ti.func
+    def sum(self, values: ti.template(), n):
+        """Sum values[0..n) into self.total[None] (call at a kernel's top level)."""
+        nb = (n + self.block - 1) // self.block
+        for b in range(nb):
+            s = 0.0
+            for k in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                s += values[k]
+            self.partial[b] = s
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            s = 0.0
+            for b in range(nb):
+                s += self.partial[b]
+            self.total[None] = s
