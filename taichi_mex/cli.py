@@ -79,6 +79,16 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="field the snapshots are coloured by (density, pressure, velocity, temperature, ...)")
     p.add_argument("--no-snapshots", action="store_true", help="skip the PNG snapshots")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    heat = p.add_argument_group("heat (off unless --thermal)")
+    heat.add_argument("--thermal", action="store_true", help="simulate temperature")
+    heat.add_argument("--convection", type=float, default=None, metavar="W_M2K",
+                      help="convective heat transfer coefficient h_c (W/m^2/K)")
+    heat.add_argument("--radiation", type=float, default=None, metavar="EMISSIVITY",
+                      help="radiate to ambient with this emissivity (off unless given)")
+    heat.add_argument("--ambient", type=float, default=None, help="ambient temperature (degC)")
+    heat.add_argument("--plate-temperature", type=float, default=None, help="build plate (degC)")
+    heat.add_argument("--surface-method", choices=["colour_gradient", "eigenvalue"], default=None,
+                      help="free-surface area estimate for losses (default colour_gradient)")
 
 
 def build_options(args, scheme_default: str = "edac"):
@@ -101,6 +111,16 @@ def build_options(args, scheme_default: str = "edac"):
                    snapshots=not args.no_snapshots, progress=not args.quiet)
     if args.sound_speed is not None:
         changes["edac"] = {"sound_speed_m_s": args.sound_speed}
+    thermal = {}
+    if getattr(args, "thermal", False):
+        thermal["enabled"] = True
+    for arg, key in (("convection", "convection_w_m2k"), ("radiation", "radiation_emissivity"),
+                     ("ambient", "ambient_c"), ("plate_temperature", "plate_temperature_c"),
+                     ("surface_method", "surface_method")):
+        if getattr(args, arg, None) is not None:
+            thermal[key] = getattr(args, arg)
+    if thermal:
+        changes["thermal"] = thermal
     run = apply_overrides(run, changes)
     if args.viscosity is not None:
         material = apply_overrides(material, {"viscosity_pa_s": args.viscosity,

@@ -330,8 +330,13 @@ class Simulation:
 
     # ----------------------------------------------------------------- output
     def config_dict(self) -> dict:
+        sec = self.plan.section_point_m
+        direction = self.plan.section_direction
         return {"scene": self.plan.name, "run": to_dict(self.run_opts), "material": to_dict(self.material),
-                "notes": self.plan.notes, "arch": getattr(self, "arch_used", None)}
+                "notes": self.plan.notes, "arch": getattr(self, "arch_used", None),
+                "spacing_m": self.run_opts.spacing_m,
+                "section_point_m": None if sec is None else [float(v) for v in sec],
+                "section_direction": None if direction is None else [float(v) for v in direction]}
 
     def output_fields(self) -> list[str]:
         fields = ["velocity", "density", "pressure", "bead_id", "phase"]
