@@ -12,7 +12,7 @@ from pathlib import Path
 from . import bundled
 from .errors import SimulationDiverged, UserInputError
 
-SUBCOMMANDS = ("scene", "study", "bench", "sweep")
+SUBCOMMANDS = ("scene", "study", "bench", "sweep", "analyse")
 
 
 def _positive_float(text: str) -> float:
@@ -66,6 +66,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="named parameter set: 'paper' = the seed paper's EDAC baseline")
     p.add_argument("--viscosity", type=_positive_float, default=None,
                    help="Newtonian melt viscosity in Pa s (overrides the material)")
+    p.add_argument("--viscosity-scale", default=None, metavar="FACTOR|auto|off",
+                   help="creeping-flow scaling of the melt viscosity (default auto for DFSPH prints: "
+                        "the smallest factor keeping Re, gravity number and slump below 0.05)")
     p.add_argument("--sound-speed", type=_positive_float, default=None,
                    help="EDAC artificial sound speed in m/s")
     p.add_argument("--arch", choices=ARCHES, default="cpu", help="cpu (default) or gpu")
@@ -111,6 +114,18 @@ def build_options(args, scheme_default: str = "edac"):
                    snapshots=not args.no_snapshots, progress=not args.quiet)
     if args.sound_speed is not None:
         changes["edac"] = {"sound_speed_m_s": args.sound_speed}
+    if args.viscosity_scale is not None:
+        text = str(args.viscosity_scale).lower()
+        if text == "auto":
+            changes["viscosity_scale"] = "auto"
+        elif text in ("off", "none", "1"):
+            changes["viscosity_scale"] = 1.0
+        else:
+            try:
+                changes["viscosity_scale"] = float(text)
+            except ValueError:
+                raise UserInputError(f"--viscosity-scale takes a number, 'auto' or 'off', not "
+                                     f"'{args.viscosity_scale}'.") from None
     thermal = {}
     if getattr(args, "thermal", False):
         thermal["enabled"] = True
@@ -131,6 +146,9 @@ def build_options(args, scheme_default: str = "edac"):
 def run_simulation(sim, out_dir: Path, snapshot_every: float | None = None) -> dict:
     """Print the estimate, run with a progress bar, report where the results are."""
     print(f"estimate: {sim.describe_estimate()}")
+    creeping = sim.describe_creeping()
+    if creeping:
+        print(creeping)
     for warning in sim.estimate["warnings"]:
         print(f"warning: {warning}")
     sim.snapshot_every_s = snapshot_every
@@ -272,6 +290,10 @@ def main(argv: list[str] | None = None) -> int:
             return run_bench(argv[1:])
         if argv and argv[0] == "scene":
             return run_scene(argv[1:])
+        if argv and argv[0] in ("analyse", "analyze"):
+            from .analysis import main as analyse_main
+
+            return analyse_main(argv[1:])
         if argv and argv[0] == "study":
             from .study import main as study_main
 

@@ -46,7 +46,15 @@ class Material:
     wlf_a2_k: float = 51.6
     specific_heat_j_kgk: float = 1800.0
     conductivity_w_mk: float = 0.13
+    #: temperature-dependent c and k: ((T degC, value), ...) points, linear in between and
+    #: constant beyond; empty = the constants above (physics/thermal.py)
+    specific_heat_table: tuple = ()
+    conductivity_table: tuple = ()
     glass_transition_c: float = 60.0
+    #: below this the melt stops flowing and becomes a rigid solid (heat must be on);
+    #: the glass transition is where PLA's viscosity diverges (Moldflow's "no-flow" temperature
+    #: of amorphous grades sits at or just above Tg)
+    no_flow_temperature_c: float = 60.0
     extrusion_temperature_c: float = 220.0
     emissivity: float = 0.92
 
@@ -93,8 +101,12 @@ class DFSPHOptions:
 
     #: stop the density solve at this mean compression error (fraction: 5e-4 = 0.05 %)
     max_density_error: float = 5e-4
+    #: ... and at this largest error of any particle (mature codes stop on the mean only,
+    #: which a few badly compressed particles next to the moving nozzle hide in)
+    max_density_error_local: float = 1e-2
     #: stop the divergence solve at this mean error of d(rho)/dt * dt / rho0
     max_divergence_error: float = 1e-3
+    max_divergence_error_local: float = 1e-2
     min_iterations: int = 2
     max_iterations: int = 100
     divergence_solve: bool = True
@@ -148,6 +160,11 @@ class RunOptions:
     max_speed_m_s: float | None = None
     #: multiplies the stable time step; > 1 only to probe stability limits
     dt_factor: float = 1.0
+    #: creeping-flow scaling of the melt viscosity (all values, ratios kept): 'auto' picks the
+    #: smallest factor that keeps the Reynolds number, the gravity number and the gravity
+    #: slump over the run below ``creeping_limit`` (print scenes, DFSPH only), 1.0 = off
+    viscosity_scale: float | str = "auto"
+    creeping_limit: float = 0.05
     edac: EDACOptions = field(default_factory=EDACOptions)
     dfsph: DFSPHOptions = field(default_factory=DFSPHOptions)
     thermal: ThermalOptions = field(default_factory=ThermalOptions)
@@ -175,6 +192,10 @@ class RunOptions:
             raise UserInputError(f"Unknown kernel '{kernel}'; choose cubic or wendland_c2.")
         if not 1.5 <= factor <= 4.0:
             raise UserInputError(f"Support radius of {factor} spacings is outside 1.5-4.")
+        if self.viscosity_scale != "auto" and not (isinstance(self.viscosity_scale, (int, float))
+                                                    and 0 < self.viscosity_scale <= 1):
+            raise UserInputError(f"viscosity_scale must be 'auto' or a number in (0, 1], got "
+                                 f"{self.viscosity_scale!r}.")
         if not 0 < self.dt_factor <= 10:
             raise UserInputError(f"dt_factor {self.dt_factor} is outside (0, 10].")
         if self.plate_layers < 1:

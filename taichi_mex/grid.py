@@ -59,6 +59,8 @@ class NeighbourGrid:
         self.max_neighbours = int(max_neighbours)
         self.nbr = ti.field(ti.i32, shape=(cap, self.max_neighbours))
         self.n_nbr = ti.field(ti.i32, shape=cap)
+        #: neighbours within H, at the front of each list after a partitioning pass
+        self.n_support = ti.field(ti.i32, shape=cap)
         self.wall_needed = ti.field(ti.i32, shape=cap)
         self.x_ref = ti.Vector.field(3, float, shape=cap)  # positions at the last rebuild
         self.overflow = ti.field(ti.i32, shape=())
@@ -231,6 +233,34 @@ class NeighbourGrid:
             xij = xi - self.state.x[j]
             if xij.norm_sqr() < self.H * self.H:
                 task(i, j, xij, acc)
+
+    @ti.func
+    def for_each_neighbour_partitioning(self, i, task: ti.template(), acc: ti.template()):
+        """for_each_neighbour that also moves the neighbours within H to the front of i's list
+        (a list stays a set, so reordering it is harmless). Later passes over the *same
+        positions* then visit just those with for_each_support_neighbour: no distance test,
+        no candidates from the skin, which a Verlet list holds ~50 % more of."""
+        xi = self.state.x[i]
+        m = 0
+        for k in range(self.n_nbr[i]):
+            j = self.nbr[i, k]
+            xij = xi - self.state.x[j]
+            if xij.norm_sqr() < self.H * self.H:
+                task(i, j, xij, acc)
+                if k != m:  # lists stay nearly partitioned from pass to pass: few writes
+                    self.nbr[i, k] = self.nbr[i, m]
+                    self.nbr[i, m] = j
+                m += 1
+        self.n_support[i] = m
+
+    @ti.func
+    def for_each_support_neighbour(self, i, task: ti.template(), acc: ti.template()):
+        """The neighbours the last for_each_neighbour_partitioning pass found within H; valid
+        only while positions are unchanged since that pass (e.g. later in the same kernel)."""
+        xi = self.state.x[i]
+        for k in range(self.n_support[i]):
+            j = self.nbr[i, k]
+            task(i, j, xi - self.state.x[j], acc)
 
     @ti.func
     def scan_cells(self, i, task: ti.template(), acc: ti.template()):

@@ -66,10 +66,11 @@ class DFSPHSolver:
 
     1. neighbour lists, densities rho_i and factors alpha_i at x_n
     2. divergence solve: make v_n divergence free                         (Alg. 2)
-    3. non-pressure forces: v* = v_visc + dt g, (I - dt/rho A_visc) v_visc = v_n (Weiler 2018;
-       gravity stays out of the viscous solve: at rest it must be carried by pressure, not
-       by friction on no-slip walls, which splitting the two would otherwise create)
-    4. constant-density solve on v*: v_{n+1}                                (Alg. 3)
+    3. last step's pressure and gravity, v' = v_n - dt grad p_n / rho + dt g, then the implicit
+       viscosity (I - dt/rho A_visc) v* = v' (Weiler 2018). With the pressure in the predictor
+       a melt at rest sees no net force here: its weight stays on the pressure, not on
+       friction at no-slip walls, and a creeping bead does not fall at g dt per step
+    4. constant-density solve on v* for the pressure increment: v_{n+1}     (Alg. 3)
     5. x_{n+1} = x_n + dt v_{n+1}; the nozzle moves to t + dt
     """
 
@@ -141,7 +142,7 @@ class DFSPHSolver:
         sim.refresh_lists()
         n = sim.state.n
         d = self.dfsph
-        d.prepare(n)
+        d.prepare(n, *sim.nozzle_clearance())
         sim.heat_step(dt)  # at x_n, with this step's lists and densities
         self._save(n)
         for attempt in range(self.retries + 1):
@@ -152,8 +153,9 @@ class DFSPHSolver:
             if self.opts.divergence_solve:
                 iv, _ = d.divergence_solve(dt)
                 self.totals["divergence_iterations"] += iv
-            ik, res = self.visc.solve(dt)
+            d.pressure_predictor(n, dt)
             self._gravity(n, dt)
+            ik, res = self.visc.solve(dt)
             ip, err = d.density_solve(dt)
             self.totals["viscosity_iterations"] += ik
             self.totals["density_iterations"] += ip
@@ -162,7 +164,7 @@ class DFSPHSolver:
                 break
         self.worst["viscosity_residual"] = max(self.worst["viscosity_residual"], res)
         self.worst["density_error"] = max(self.worst["density_error"], err)
-        out = d.finish(n, dt)
+        out = d.finish(n, dt, d.shifting * self.dx * self.dx)
         self.vmax = float(out[0])
         if out[1] > 0:
             sim.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..backend import ti
 from ..reduce import BlockSum
-from ..state import FLUID
+from ..state import FLUID, INLET, NOZZLE
 
 
 def rest_volume(kernel, spacing_m: float) -> float:
@@ -52,10 +52,23 @@ def rest_volume(kernel, spacing_m: float) -> float:
 class DFSPH:
     #: CG iterations per kernel launch (unrolled; iterations after convergence do no work)
     chunk = 4
-    #: the density solve corrects compression only (as in the paper): with tension allowed
-    #: inside the melt it blew up in every variant we measured (CG and Jacobi, omega 0.5-1,
-    #: cubic and Wendland kernels); the divergence solve may pull inside the melt
-    density_compression_only = True
+    #: The density solve corrects compression only, everywhere, as in the paper. With tension
+    #: inside the melt it blew up in every variant measured on the single bead (CG and Jacobi,
+    #: omega 0.5-1, cubic and Wendland kernels, tension kept away from walls and from the
+    #: nozzle): SPH's tensile instability. The divergence solve may pull inside the melt.
+    density_compression_only = False
+    #: inside the melt (away from the free surface and the nozzle) expansions are corrected
+    #: too, but only this fraction per step: full tension there is SPH's tensile instability
+    tension_relaxation = 0.2
+    #: where the divergence solve also removes expansion rates: 'none' (the paper: compression
+    #: only), 'interior' (away from the free surface and the nozzle) or 'everywhere'
+    divergence_tension = "interior"
+    #: fraction of last step's pressure the predictor forgets: the inexact (toleranced) solves
+    #: would otherwise let noise in the summed pressure random-walk from step to step
+    pressure_memory_loss = 0.05
+    #: particle shifting, D = beta dx^2 per step; off: at beta = 0.5 it wrecked the hydrostatic
+    #: pressure (56 % error) without fixing bead shapes
+    shifting = 0.0
     #: 'cg' (default) or 'jacobi' (the paper's relaxed sweeps, omega 0.5)
     method = "cg"
     omega = 0.5
@@ -66,6 +79,7 @@ class DFSPH:
         self.K = kernel
         self.opts = opts
         self.rho0 = float(rho0)
+        self.dx = float(spacing_m)
         self.V0 = rest_volume(kernel, spacing_m)
         self.mass = self.rho0 * self.V0
         self.alpha = state.add("dfsph_factor")
@@ -82,10 +96,12 @@ class DFSPH:
         self.p = ti.field(float, shape=cap)
         self.Ap = ti.field(float, shape=cap)
         self.Gp = ti.Vector.field(3, float, shape=cap)
+        self.grad_c = ti.Vector.field(3, float, shape=cap)  # gradient of the kernel sum, for shifting
         self.term = ti.field(float, shape=cap)
         self.sum = BlockSum(cap)
         # rz, cg alpha, beta, mean error, iterations, done, n_fluid, error scale
         self.s = ti.field(float, shape=8)
+        self.emax = ti.field(float, shape=())  # largest |residual| (scaled like s[3] by `scale`)
         self.stats = {"density_iterations": 0, "divergence_iterations": 0}
 
     # ------------------------------------------------------------------ per step
@@ -94,7 +110,8 @@ class DFSPH:
         w = self.K.W(xij.norm())
         acc[0] += self.V0 * w
         acc[1] += 1.0
-        if self.state.phase[j] != FLUID:
+        ph = self.state.phase[j]
+        if ph == NOZZLE or ph == INLET:
             acc[5] += 1.0
         for d in ti.static(range(3)):
             acc[2 + d] -= w * xij[d]  # sum_j W_ij (x_j - x_i)
@@ -108,8 +125,12 @@ class DFSPH:
             acc[1 + d] += gV[d]
 
     @ti.kernel
-    def prepare(self, n: ti.i32):
-        """Densities, neighbour counts, free-surface flags and alpha at x_n."""
+    def prepare(self, n: ti.i32, tip_x: float, tip_y: float, clear_r: float):
+        """Densities, neighbour counts, no-tension flags and alpha at x_n.
+
+        No tension at the free surface, nor in the melt around the moving nozzle (within
+        clear_r of its axis, or touching it): there it would glue the melt to the tip and
+        tear it, which blew up every run we tried. The deposited bead behind may pull."""
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -117,14 +138,15 @@ class DFSPH:
                 self.state.rho[i] = self.rho0 * acc[0]
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
-                # no tension at the free surface, nor against walls (it would glue melt to
-                # the moving nozzle)
-                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0
+                xi = self.state.x[i]
+                near_nozzle = (xi[0] - tip_x) ** 2 + (xi[1] - tip_y) ** 2 < clear_r * clear_r
+                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0 or near_nozzle
                 self.surface[i] = 1 if no_tension else 0
                 f = ti.Vector([0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._factor_task, f)
                 s = f[0] + f[1] * f[1] + f[2] * f[2] + f[3] * f[3]
                 self.alpha[i] = 1.0 / s if s > 0.0 else 0.0
+                self.grad_c[i] = ti.Vector([f[1], f[2], f[3]])  # grad of C = sum_j V_j W_ij
             else:
                 self.state.rho[i] = self.rho0
                 self.alpha[i] = 0.0
@@ -183,9 +205,22 @@ class DFSPH:
                 else:
                     b = div / dt
                 act = 1
-                if (self.surface[i] == 1 or ti.static(self.density_compression_only and density)) and b <= 0.0:
-                    act = 0  # free surface opening up: no tension there
-                    b = 0.0
+                if ti.static(density):
+                    if (self.surface[i] == 1 or ti.static(self.density_compression_only)) and b <= 0.0:
+                        act = 0  # free surface opening up: no tension there
+                        b = 0.0
+                    elif b < 0.0:
+                        b *= self.tension_relaxation  # pull gaps shut over several steps
+                else:
+                    if self.n_count[i] < 20:
+                        act = 0  # too few neighbours for a divergence estimate
+                        b = 0.0
+                    elif ti.static(self.divergence_tension == "none") and b <= 0.0:
+                        act = 0
+                        b = 0.0
+                    elif ti.static(self.divergence_tension == "interior") and self.surface[i] == 1 and b <= 0.0:
+                        act = 0
+                        b = 0.0
             self.b[i] = b
             self.active[i] = act
             self.term[i] = ti.abs(b)
@@ -200,25 +235,41 @@ class DFSPH:
             if self.state.phase[i] == FLUID:
                 self.state.v[i] -= dt * self.Gp[i]
 
+    @ti.kernel
+    def pressure_predictor(self, n: ti.i32, dt: float):
+        """v -= dt G(kappa): last step's pressure, applied with gravity before the viscous solve
+        (incremental pressure projection, van Kan 1986). Operator splitting otherwise lets
+        gravity set the melt falling at g dt every step, which the implicit viscosity stops only
+        after the step has moved it: a bead of 1000 Pa s then flattens at ~1 mm/s instead of
+        creeping at rho g h^2 / eta ~ 1e-5 mm/s. A free-surface particle carries no pressure
+        (p = 0 there; stale squeeze pressure left from under the nozzle would inflate the bead)."""
+        for i in range(n):
+            k = self.kappa[i] * (1.0 - self.pressure_memory_loss)
+            if self.state.phase[i] != FLUID or self.surface[i] == 1:
+                k = 0.0
+            self.kappa[i] = k
+        self._kick(n, dt, self.kappa)
+
     # ------------------------------------------------------------------ CG
     @ti.kernel
     def _start(self, n: ti.i32, dt: float, density: ti.template(), scale: float):
-        """Warm start with half of last step's k, then r0 = b, z0 = alpha r0, p0 = z0."""
-        self._source(n, dt, density)
-        for i in range(n):
-            k = 0.0
-            if self.active[i] == 1:
-                if ti.static(density):
-                    k = 0.5 * self.kappa[i]
-                else:
+        """Warm start, then r0 = b, z0 = alpha r0, p0 = z0.
+
+        The divergence solve starts from half of last step's k (Bender & Koschier). The
+        density solve is incremental: the whole of last step's pressure was already applied
+        with gravity before the viscous solve (``pressure_predictor``), so it solves for the
+        change only and adds it to kappa."""
+        if ti.static(not density):
+            self._source(n, dt, density)
+            for i in range(n):
+                k = 0.0
+                if self.active[i] == 1:
                     k = 0.5 * self.kappa_v[i] / dt
-            self.k[i] = k
-        self._kick(n, dt, self.k)
+                self.k[i] = k
+            self._kick(n, dt, self.k)
         self._source(n, dt, density)
         for i in range(n):
-            if ti.static(density):
-                self.kappa[i] = self.k[i]
-            else:
+            if ti.static(not density):
                 self.kappa_v[i] = self.k[i]
             r = self.b[i] if self.active[i] == 1 else 0.0
             self.r[i] = r
@@ -232,10 +283,17 @@ class DFSPH:
             self.term[i] = ti.abs(self.r[i])
         self.sum.sum(self.term, n)
         self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
+        self._largest(n, scale)
+
+    @ti.func
+    def _largest(self, n, scale):
+        self.emax[None] = 0.0
+        for i in range(n):
+            ti.atomic_max(self.emax[None], self.term[i] * scale)
 
     @ti.kernel
-    def _iterate(self, n: ti.i32, dt: float, density: ti.template(), tol: float, scale: float,
-                 min_iter: ti.i32) -> ti.types.vector(2, float):
+    def _iterate(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
+                 scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
         for _ in ti.static(range(self.chunk)):
             self._apply(n, ti.cast(self.s[5], ti.i32))
             for i in range(n):
@@ -256,7 +314,8 @@ class DFSPH:
                     self.z[i] = self.alpha[i] * r
                     self.term[i] = ti.abs(r)
             self.sum.sum(self.term, n)
-            self._error(tol, scale, min_iter)
+            self._largest(n, scale)
+            self._error(tol, tol_local, scale, min_iter)
             for i in range(n):
                 self.term[i] = self.r[i] * self.z[i]
             self.sum.sum(self.term, n)
@@ -264,11 +323,11 @@ class DFSPH:
             for i in range(n):
                 if self.s[5] == 0.0:
                     self.p[i] = self.z[i] + self.s[2] * self.p[i]
-        return ti.Vector([self.s[3], self.s[4]])
+        return ti.Vector([self.s[3], self.s[4], self.emax[None]])
 
     @ti.kernel
-    def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: float, scale: float,
-                min_iter: ti.i32) -> ti.types.vector(2, float):
+    def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
+                scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
         """Bender & Koschier's relaxed Jacobi sweeps (k = omega alpha b), `chunk` per launch."""
         for _ in ti.static(range(self.chunk)):
             for i in range(n):
@@ -290,17 +349,18 @@ class DFSPH:
                     self.state.v[i] -= dt * self.Gp[i]
             self._source(n, dt, density)
             self.sum.sum(self.term, n)
-            self._count_and_check(tol, scale, min_iter)
-        return ti.Vector([self.s[3], self.s[4]])
+            self._largest(n, scale)
+            self._count_and_check(tol, tol_local, scale, min_iter)
+        return ti.Vector([self.s[3], self.s[4], self.emax[None]])
 
     @ti.func
-    def _count_and_check(self, tol, scale, min_iter):
+    def _count_and_check(self, tol, tol_local, scale, min_iter):
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.s[5] == 0.0:
                 self.s[4] += 1.0
                 self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-                if self.s[3] <= tol and self.s[4] >= min_iter:
+                if self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter:
                     self.s[5] = 1.0
 
     @ti.func
@@ -313,12 +373,12 @@ class DFSPH:
                 self.s[4] += 1.0
 
     @ti.func
-    def _error(self, tol, scale, min_iter):
+    def _error(self, tol, tol_local, scale, min_iter):
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.s[5] == 0.0:
                 self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-                if self.s[3] <= tol and self.s[4] >= min_iter:
+                if self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter:
                     self.s[5] = 1.0
 
     @ti.func
@@ -331,7 +391,8 @@ class DFSPH:
                 self.s[0] = rz
 
     # ------------------------------------------------------------------ solves
-    def _solve(self, dt: float, density: bool, tol: float, min_iter: int, max_iter: int) -> tuple[int, float]:
+    def _solve(self, dt: float, density: bool, tol: float, tol_local: float, min_iter: int,
+               max_iter: int) -> tuple[int, float]:
         n = self.state.n
         self.s.fill(0.0)
         self._count_fluid(n)
@@ -339,25 +400,29 @@ class DFSPH:
         scale = dt * dt if density else dt
         self._start(n, dt, density, scale)
         err = float(self.s[3])
+        self.last_max_error = float(self.emax[None])
         iters = 0
         iterate = self._jacobi if self.method == "jacobi" else self._iterate
-        if err > tol or min_iter > 0:
+        if err > tol or self.last_max_error > tol_local or min_iter > 0:
             while iters < max_iter:
-                out = iterate(n, dt, density, tol, scale, min_iter)
+                out = iterate(n, dt, density, tol, tol_local, scale, min_iter)
                 err, iters = float(out[0]), int(out[1])
+                self.last_max_error = float(out[2])
                 if float(self.s[5]) > 0:
                     break
         return iters, err
 
     def divergence_solve(self, dt: float) -> tuple[int, float]:
         o = self.opts
-        iters, err = self._solve(dt, False, o.max_divergence_error, 0, o.max_iterations)
+        iters, err = self._solve(dt, False, o.max_divergence_error, o.max_divergence_error_local,
+                                 0, o.max_iterations)
         self.stats["divergence_iterations"] = iters
         return iters, err
 
     def density_solve(self, dt: float) -> tuple[int, float]:
         o = self.opts
-        iters, err = self._solve(dt, True, o.max_density_error, o.min_iterations, o.max_iterations)
+        iters, err = self._solve(dt, True, o.max_density_error, o.max_density_error_local,
+                                 o.min_iterations, o.max_iterations)
         self.stats["density_iterations"] = iters
         return iters, err
 
@@ -377,13 +442,20 @@ class DFSPH:
         return vmax
 
     @ti.kernel
-    def finish(self, n: ti.i32, dt: float) -> ti.types.vector(2, float):
+    def finish(self, n: ti.i32, dt: float, shift: float) -> ti.types.vector(2, float):
         """Pressure for output (p = kappa rho^2 / rho0), the divergence stiffness made
         dt-independent for the next warm start, fluid moved; returns (max fluid speed,
         non-finite fluid particles).
 
         The density solve's k is pressure-like (the compression a step creates scales with
-        dt^2); the divergence solve's k scales with 1/dt, so it is stored times dt."""
+        dt^2); the divergence solve's k scales with 1/dt, so it is stored times dt.
+
+        Particle shifting (Lind et al., J. Comput. Phys. 231, 2012): x += -D grad C with
+        C = sum_j V_j W_ij and D = shift (m^2), at most a tenth of a spacing, tangential only at
+        the free surface. The compression-only density solve cannot close the gaps that the
+        nozzle opens when it shears and stretches the extrudate; shifting does. Lind et al.
+        scale D with the flow speed; a creeping bead at rest behind the nozzle would then keep
+        its gaps, so D is a fixed fraction of dx^2 per step (no shift on a uniform lattice)."""
         vmax = 0.0
         bad = 0.0
         for i in range(n):
@@ -391,7 +463,16 @@ class DFSPH:
                 rho = self.state.rho[i]
                 self.state.p[i] = self.kappa[i] * rho * rho / self.rho0
                 self.kappa_v[i] *= dt
-                self.state.x[i] += dt * self.state.v[i]
+                dr = -shift * self.grad_c[i]
+                if self.surface[i] == 1:
+                    g = self.grad_c[i]
+                    gg = g.norm_sqr()
+                    if gg > 0.0:
+                        dr -= dr.dot(g) / gg * g  # keep the free surface where it is
+                lim = 0.1 * self.dx
+                if dr.norm() > lim:
+                    dr *= lim / dr.norm()
+                self.state.x[i] += dt * self.state.v[i] + dr
                 s = self.state.v[i].norm()
                 if ti.math.isnan(s) or ti.math.isinf(s):
                     bad += 1.0

@@ -124,7 +124,9 @@ class EDAC:
     def _density(self, n):
         for i in range(n):
             acc = self.K.W0
-            self.grid.for_each_neighbour(i, self._density_task, acc)
+            # also sorts each list so that the wall and rate passes below, at the same
+            # positions, visit only the neighbours within the support
+            self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
             self.V[i] = 1.0 / acc
             if self.state.phase[i] == FLUID:
                 self.state.rho[i] = self.state.m[i] * acc
@@ -146,7 +148,7 @@ class EDAC:
         for i in range(n):
             if self.state.phase[i] != FLUID:
                 acc = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0])
-                self.grid.for_each_neighbour(i, self._wall_task, acc)
+                self.grid.for_each_support_neighbour(i, self._wall_task, acc)
                 vw = self.state.v[i]
                 p = 0.0
                 vg = vw
@@ -193,7 +195,7 @@ class EDAC:
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([0.0, 0.0, 0.0, 0.0])
-                self.grid.for_each_neighbour(i, self._rate_task, acc)
+                self.grid.for_each_support_neighbour(i, self._rate_task, acc)
                 inv_m = 1.0 / self.state.m[i]
                 self.acc[i] = ti.Vector([acc[0], acc[1], acc[2]]) * inv_m + ti.Vector(self.g)
                 self.dpdt[i] = acc[3] * inv_m

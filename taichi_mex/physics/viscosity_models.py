@@ -39,6 +39,11 @@ class MeltViscosity:
         else:
             self.T_const = 0.0
 
+    def attach(self, grid, kernel) -> None:
+        """Neighbour access for the shear rate (Cross-WLF only)."""
+        self.grid = grid
+        self.K = kernel
+
     @property
     def is_constant(self) -> bool:
         return self.model == "newtonian"
@@ -70,8 +75,32 @@ class MeltViscosity:
         return value
 
     def update(self, n: int) -> None:
+        if self.model == "cross_wlf":
+            self._shear_rates(n)
         if self.model != "newtonian":
             self._update(n)
+
+    @ti.func
+    def _gradient_task(self, i, j, xij, acc: ti.template()):
+        # SPH velocity gradient L_i = sum_j (m_j / rho_j) (v_j - v_i) (x) grad W_ij
+        g = self.K.F(xij.norm()) * xij
+        vol = self.state.m[j] / ti.max(self.state.rho[j], 1e-12)
+        acc += vol * (self.state.v[j] - self.state.v[i]).outer_product(g)
+
+    @ti.kernel
+    def _shear_rates(self, n: ti.i32):
+        """gdot_i = sqrt(2 D:D) with D the symmetric part of the velocity gradient (lagged one
+        step: the implicit solve then sees a viscosity frozen over the step)."""
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                L = ti.Matrix.zero(float, 3, 3)
+                self.grid.for_each_neighbour(i, self._gradient_task, L)
+                D = 0.5 * (L + L.transpose())
+                s = 0.0
+                for a in ti.static(range(3)):
+                    for b in ti.static(range(3)):
+                        s += D[a, b] * D[a, b]
+                self.shear_rate[i] = ti.sqrt(2.0 * s)
 
     @ti.kernel
     def _update(self, n: ti.i32):

@@ -58,6 +58,7 @@ class HydrostaticScene:
         rel = []
         bottom = bottom_expected = float("nan")
         per_layer = max(int(core.sum() / max(slab.max(), 1)), 1)
+        slab_depth, slab_p = [], []
         for k in range(1, int(slab.max()) + 1):  # slab 0 is the free-surface layer
             sel = slab == k
             if sel.sum() < 0.25 * per_layer:
@@ -66,7 +67,12 @@ class HydrostaticScene:
             expected = rho0 * g * float(depth[sel].mean())
             rel.append(abs(mean_p - expected) / (rho0 * g * top))
             bottom, bottom_expected = mean_p, expected
+            slab_depth.append(float(depth[sel].mean()))
+            slab_p.append(mean_p)
+        # the slope dp/dz must be rho g, wherever the discrete free surface sits
+        slope = float(np.polyfit(slab_depth, slab_p, 1)[0]) if len(slab_p) > 2 else float("nan")
         return {
+            "pressure_gradient_rel_error": abs(slope / (rho0 * g) - 1.0),
             "surface_height_m": top,
             "pressure_error_rel_max": float(max(rel)),
             "pressure_error_rel_mean": float(np.mean(rel)),

@@ -87,11 +87,9 @@ class PrintScene:
         sel_volume = sel.volume_mm3 * 1e-9
         inflow = int(np.ceil(sel_volume / dx**3 * 1.02)) + 16
         tip = None if self.tip_outer_mm is None else self.tip_outer_mm * 1e-3
-        mid_t = 0.5 * (t0 + sel.t_end_s)
-        s = traj.sample([mid_t], clip=True)
-        direction = np.array([s.velocity_mm_s[0, 0], s.velocity_mm_s[0, 1], 0.0])
-        if np.linalg.norm(direction) < 1e-9:
-            direction = self._longest_bead_direction()
+        # the longest selected bead sets the section (the middle of the time window may fall on
+        # a travel move)
+        direction = self._longest_bead_direction()
         speed = float(np.max(np.linalg.norm(traj.sample(times, clip=True).velocity_mm_s, axis=1))) * 1e-3
         section = self._section_point(zoff)
         return ScenePlan(
@@ -101,6 +99,10 @@ class PrintScene:
             commanded_volume_m3=lambda t: float(sel.volume_until([t])[0]) * 1e-9,
             notes={"gcode": str(traj.source), "printer": traj.printer.name,
                    "speed_scale_m_s": max(speed, 1e-3), "z_offset_m": zoff,
+                   # creeping-flow numbers: nozzle speed over the nozzle bore, the run's duration
+                   "creeping_speed_m_s": max(speed, 1e-3),
+                   "creeping_length_m": traj.printer.nozzle_diameter_mm * 1e-3,
+                   "creeping_duration_s": t1 - t0,
                    "selected_layers": sel.report()["selected_layers"],
                    "substrate_particles": int(len(substrate)),
                    "nozzle_diameter_m": traj.printer.nozzle_diameter_mm * 1e-3},
@@ -108,9 +110,11 @@ class PrintScene:
 
     def _longest_bead_direction(self) -> np.ndarray:
         traj = self.trajectory
-        ok = np.isfinite(self.selection.t_lo_s)
-        idx = np.nonzero(ok)[0]
-        d = traj.pos_end_mm[idx, :2] - traj.pos_begin_mm[idx, :2]
+        sel = self.selection
+        idx = np.nonzero(np.isfinite(sel.t_lo_s))[0]
+        a = traj.sample(sel.t_lo_s[idx]).position_mm
+        b = traj.sample(sel.t_hi_s[idx]).position_mm
+        d = b[:, :2] - a[:, :2]
         k = int(np.argmax(np.linalg.norm(d, axis=1)))
         return np.array([d[k, 0], d[k, 1], 0.0])
 
@@ -157,6 +161,15 @@ class PrintScene:
 
     def describe(self) -> str:
         return self.print_plan.describe()
+
+    def write_outputs(self, sim, out_dir) -> None:
+        """Mesostructure of the last frame: sections normal to the extrusion direction."""
+        from ..analysis import analyse_run
+
+        try:
+            sim.mesostructure = analyse_run(out_dir)
+        except Exception as exc:  # noqa: BLE001 - the run's results stand without the analysis
+            print(f"warning: mesostructure analysis skipped: {exc}")
 
 
 def _obround_points(p0, p1, width, z_bot, h, dx, lo_xy, hi_xy) -> np.ndarray:

@@ -1,0 +1,172 @@
+"""Mesostructure analysis on synthetic frames: lattice beads of known shape in HDF5 files
+laid out like a run's particles.h5 (see taichi_mex/output.py)."""
+
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from taichi_mex import analysis
+from taichi_mex.errors import UserInputError
+
+DX = 0.04e-3          # particle spacing (m)
+LENGTH = 12 * DX      # beads run along x over this length, centred on x = 0
+
+
+def lattice_section(u_lo, u_hi, v_lo, v_hi, dx=DX):
+    """Cell-centred (y, z) lattice points of a rectangle in the section plane."""
+    ys = np.arange(math.floor(u_lo / dx), math.ceil(u_hi / dx)) * dx + dx / 2
+    zs = np.arange(math.floor(v_lo / dx), math.ceil(v_hi / dx)) * dx + dx / 2
+    Y, Z = np.meshgrid(ys, zs, indexing="ij")
+    yz = np.stack([Y.ravel(), Z.ravel()], axis=1)
+    keep = (yz[:, 0] > u_lo) & (yz[:, 0] < u_hi) & (yz[:, 1] > v_lo) & (yz[:, 1] < v_hi)
+    return yz[keep]
+
+
+def extrude(yz, dx=DX):
+    """Repeat section points along x (cell-centred, |x| < LENGTH / 2) into 3D positions."""
+    xs = (np.arange(round(LENGTH / dx)) + 0.5) * dx - LENGTH / 2
+    X = np.repeat(xs, len(yz))
+    YZ = np.tile(yz, (len(xs), 1))
+    return np.column_stack([X, YZ])
+
+
+def write_run(folder, yz, bead, frames=1, dx=DX, plate=True):
+    """A run folder with particles.h5 holding `frames` identical frames of these beads."""
+    folder.mkdir(parents=True, exist_ok=True)
+    pos = extrude(yz, dx)
+    ids = np.tile(bead, round(LENGTH / dx))
+    config = {"spacing_m": dx, "section_point_m": [0.0, 0.0, 0.0],
+              "section_direction": [1.0, 0.0, 0.0], "scene": "synthetic"}
+    with h5py.File(folder / "particles.h5", "w") as h5:
+        h5.attrs["config"] = json.dumps(config)
+        h5.attrs["units"] = json.dumps({"position": "m"})
+        if plate:
+            lo, hi = yz[:, 0].min() - 10 * dx, yz[:, 0].max() + 10 * dx
+            ys = np.arange(lo, hi, dx) + dx / 2
+            xs = (np.arange(round(LENGTH / dx)) + 0.5) * dx - LENGTH / 2
+            X, Y, Z = np.meshgrid(xs, ys, -(np.arange(3) + 0.5) * dx, indexing="ij")
+            h5["plate/position"] = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+        for i in range(frames):
+            g = h5.create_group(f"frames/{i:06d}")
+            g.attrs["time_s"] = 0.1 * i
+            g.attrs["step"] = 10 * i
+            g["position"] = pos
+            g["velocity"] = np.zeros_like(pos)
+            g["density"] = np.full(len(pos), 1240.0)
+            g["pressure"] = np.zeros(len(pos))
+            g["bead_id"] = ids.astype(np.int32)
+            g["phase"] = np.zeros(len(pos), np.int32)
+    return folder
+
+
+def test_slicer_model_inverts_the_rounded_rectangle():
+    W, H = 0.45, 0.2
+    area = (W - H) * H + math.pi * H**2 / 4
+    assert analysis.slicer_model(area, H) == pytest.approx(W)
+    with pytest.raises(UserInputError):
+        analysis.slicer_model(0.1, 0.0)
+
+
+def test_single_rectangular_bead(tmp_path):
+    W, H = 0.48e-3, 0.2e-3           # 12 x 5 particles
+    yz = lattice_section(-W / 2, W / 2, 0.0, H)
+    frame = analysis.load_frame(write_run(tmp_path, yz, np.zeros(len(yz))) / "particles.h5")
+    sec = analysis.cross_section(frame, [0, 0, 0], [1, 0, 0], DX)
+    (b,) = sec.beads
+    pixel_mm = 1e3 * sec.pixel_m
+    # extents within a pixel; area within 1 %: the smoothing rounds the two free corners
+    assert b["width_mm"] == pytest.approx(0.48, abs=1.01 * pixel_mm)
+    assert b["height_mm"] == pytest.approx(0.20, abs=1.01 * pixel_mm)
+    assert b["area_mm2"] == pytest.approx(0.48 * 0.20, rel=0.01)
+    assert b["centroid_mm"] == pytest.approx([0.0, 0.10], abs=0.5 * pixel_mm)
+    assert sec.totals["void_fraction"] == 0.0
+    (plate,) = sec.contacts   # only the plate: the bead's footprint is its width
+    assert plate["kind"] == "plate"
+    assert plate["neck_width_mm"] == pytest.approx(0.48, abs=2 * pixel_mm)
+
+
+def test_neck_between_two_overlapping_round_beads(tmp_path):
+    dx = DX / 2                       # ten particles per radius: the lattice disc is close to round
+    R, d = 0.2e-3, 0.3e-3             # radius, centre distance: overlap 0.1 mm
+    zc = 0.4e-3                       # clear of the plate
+    yz = lattice_section(-d / 2 - R, d / 2 + R, zc - R, zc + R, dx)
+    left = np.hypot(yz[:, 0] + d / 2, yz[:, 1] - zc) <= R
+    right = np.hypot(yz[:, 0] - d / 2, yz[:, 1] - zc) <= R
+    yz, bead = yz[left | right], (yz[:, 0] > 0)[left | right].astype(int)
+    frame = analysis.load_frame(write_run(tmp_path, yz, bead, dx=dx) / "particles.h5")
+    sec = analysis.cross_section(frame, [0, 0, 0], [1, 0, 0], dx)
+    (neck,) = sec.contacts
+    truth = 2e3 * math.sqrt(R**2 - (d / 2) ** 2)          # 0.2646 mm
+    assert neck["kind"] == "side" and sorted(neck["beads"]) == [0, 1]
+    # the lattice's own neck is 14 particles (0.28 mm): within one spacing of the circles'
+    assert neck["neck_width_mm"] == pytest.approx(truth, abs=1e3 * dx)
+    for b in sec.beads:
+        assert b["height_mm"] == pytest.approx(0.4, abs=1e3 * dx / 2)
+        assert b["width_mm"] == pytest.approx(0.35, abs=1e3 * dx / 2)
+        area = math.pi * 0.2**2 - (0.2**2 * math.acos(0.75) - 0.15 * math.sqrt(0.2**2 - 0.15**2))
+        assert b["area_mm2"] == pytest.approx(area, rel=0.03)
+        assert b["particle_area_mm2"] == pytest.approx(b["area_mm2"], rel=0.03)
+
+
+def test_void_fraction_of_a_block_with_a_hole(tmp_path):
+    W, H = 0.4e-3, 0.2e-3             # 2 x 2 beads, 10 x 5 particles each
+    hole = (-0.12e-3, 0.12e-3, 0.12e-3, 0.28e-3)   # 6 x 4 particles, across the junction
+    yz = lattice_section(-W, W, 0.0, 2 * H)
+    inside = ((yz[:, 0] > hole[0]) & (yz[:, 0] < hole[1]) & (yz[:, 1] > hole[2]) & (yz[:, 1] < hole[3]))
+    yz = yz[~inside]
+    bead = (yz[:, 0] > 0).astype(int) + 2 * (yz[:, 1] > H).astype(int)
+    run = write_run(tmp_path / "run", yz, bead, frames=2)
+    report = analysis.analyse_run(run)
+    (sec,) = report["sections"]
+    hole_area = 0.24 * 0.16
+    truth = hole_area / (0.8 * 0.4)                                # 0.12
+    assert sec["void_fraction"] == pytest.approx(truth, abs=0.01)
+    assert sec["voids_count"] == 1
+    assert sec["voids"][0]["area_mm2"] == pytest.approx(hole_area, rel=0.1)
+    assert sec["beads_count"] == 4
+    kinds = sorted(c["kind"] for c in sec["contacts"])
+    assert kinds.count("side") == 2 and kinds.count("layer") == 2 and kinds.count("plate") == 2
+    # the hole takes 0.08 mm off each side neck (0.2 high) and 0.12 off each layer neck (0.4 wide)
+    for c in sec["contacts"]:
+        expect = {"side": 0.12, "layer": 0.28, "plate": 0.4}[c["kind"]]
+        assert c["neck_width_mm"] == pytest.approx(expect, abs=0.011)
+    assert (run / "mesostructure.json").is_file()
+    assert json.loads((run / "mesostructure.json").read_text())["frame"]["index"] == 1
+    png = run / sec["png"]
+    assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_cli_extra_positions_and_bad_inputs(tmp_path, capsys):
+    yz = lattice_section(-0.2e-3, 0.2e-3, 0.0, 0.2e-3)
+    run = write_run(tmp_path / "run", yz, np.zeros(len(yz)), frames=2)
+    assert analysis.main([str(run), "--frame", "0", "--at", "0.1"]) == 0
+    assert "void 0.00 %" in capsys.readouterr().out
+    report = json.loads((run / "mesostructure.json").read_text())
+    assert [s["position"]["coordinate_mm"] for s in report["sections"]] == pytest.approx([0.0, 0.1])
+    assert len(list((run / "sections").glob("section_*.png"))) == 2
+    with pytest.raises(UserInputError, match="frame 5 does not exist"):
+        analysis.main([str(run), "--frame", "5"])
+    with pytest.raises(UserInputError, match="cuts no melt"):
+        analysis.main([str(run), "--at", "3"])
+    with pytest.raises(UserInputError, match="No run folder"):
+        analysis.main([str(tmp_path / "missing")])
+    with pytest.raises(UserInputError, match="No particles file"):
+        analysis.main([str(tmp_path)])
+    with pytest.raises(UserInputError):
+        analysis.main([str(run), "--frame", "last"])
+    with pytest.raises(UserInputError, match="horizontal"):
+        analysis.main([str(run), "--direction", "0", "0"])
+    with pytest.raises(UserInputError, match="horizontal"):
+        analysis.cross_section(analysis.load_frame(run / "particles.h5"), [0, 0, 0], [0, 0, 1], DX)
+
+
+def test_interface_chords_split_pieces_and_follow_staircases():
+    # two vertical edges stacked (one piece) and, apart, three horizontal edges in a row
+    straight = [(1, 2), (3, 2), (10, 1), (10, 3), (10, 5)]
+    assert sorted(analysis._interface_chords(np.array(straight))) == pytest.approx([2.0, 3.0])
+    # a staircase: vertical, horizontal, vertical, horizontal... joined at pixel corners
+    stairs = [(1, 2), (2, 3), (3, 4), (4, 5), (5, 6), (6, 7)]
+    assert analysis._interface_chords(np.array(stairs)) == pytest.approx([math.hypot(3, 3)])
