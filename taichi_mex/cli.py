@@ -25,6 +25,18 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _resolution(text: str) -> float:
+    from .config import RESOLUTION_PRESETS
+
+    if text in RESOLUTION_PRESETS:
+        return float(RESOLUTION_PRESETS[text]["run"]["spacing_mm"])
+    try:
+        return _positive_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(
+            f"'{text}' is neither a spacing in mm nor one of {', '.join(RESOLUTION_PRESETS)}") from None
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that reports errors through UserInputError (one paragraph, exit 2)."""
 
@@ -58,10 +70,11 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     from .backend import ARCHES, PRECISIONS
     from .config import PRESETS, SCHEMES
 
-    p.add_argument("--resolution", "--spacing-mm", dest="spacing_mm", type=_positive_float,
-                   default=None, help="particle spacing in mm (default 0.05; preset-dependent)")
+    p.add_argument("--resolution", "--spacing-mm", dest="spacing_mm", type=_resolution,
+                   default=None, help="particle spacing in mm, or draft / standard / fine "
+                                      "(3 / 4 / 6 particles across a 0.2 mm layer; default standard)")
     p.add_argument("--scheme", "--solver", dest="scheme", choices=SCHEMES, default=None,
-                   help="pressure scheme (default edac)")
+                   help="pressure solver: dfsph (default: implicit pressure and viscosity) or edac (the seed paper's explicit baseline)")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="named parameter set: 'paper' = the seed paper's EDAC baseline")
     p.add_argument("--viscosity", type=_positive_float, default=None,
@@ -94,7 +107,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                       help="free-surface area estimate for losses (default colour_gradient)")
 
 
-def build_options(args, scheme_default: str = "edac"):
+def build_options(args, scheme_default: str = "dfsph"):
     """RunOptions and Material from parsed arguments and an optional preset."""
     from .config import PRESETS, Material, RunOptions, apply_overrides
 
@@ -236,7 +249,8 @@ def run_scene(argv: list[str]) -> int:
     args = p.parse_args(argv[1:])
     scene, run_defaults, material_overrides = spec.build(args)
     run, material, _ = build_options(args, scheme_default=run_defaults.get("scheme", "dfsph"))
-    explicit = {"spacing_mm": args.spacing_mm, "scheme": args.scheme}
+    explicit = {"spacing_mm": args.spacing_mm, "scheme": args.scheme,
+                "edac": args.sound_speed, "viscosity_scale": args.viscosity_scale}
     defaults = {k: v for k, v in run_defaults.items() if explicit.get(k) is None}
     run = apply_overrides(run, defaults)
     material = apply_overrides(material, material_overrides)
@@ -250,9 +264,16 @@ def run_bench(argv: list[str]) -> int:
 
     from . import bench
 
+    if argv and argv[0] == "dam-break":  # not in `bench all`: PySPH takes minutes
+        from .peer import main as peer_main
+
+        return peer_main(argv[1:], parser_class=_Parser)
+
     p = _Parser(prog="python -m taichi_mex bench",
                 description="Measure particle-steps per second (and the toolpath sampler).")
-    p.add_argument("which", nargs="?", default="all", choices=["all", "print", "edac", "toolpath"])
+    p.add_argument("which", nargs="?", default="all",
+                   choices=["all", "print", "edac", "toolpath", "dam-break"],
+                   help="dam-break: ours against PySPH (optional 'peer' extra); see --help there")
     p.add_argument("--particles", type=int, default=100_000, help="size of the EDAC block")
     p.add_argument("--measure", type=_positive_float, default=None,
                    help="simulated seconds to time (default: per benchmark)")

@@ -137,7 +137,7 @@ class ThermalOptions:
 class RunOptions:
     """How a scene is discretised and integrated."""
 
-    scheme: str = "edac"
+    scheme: str = "dfsph"
     spacing_mm: float = 0.05
     #: 'cubic' or 'wendland_c2'; None = the scheme's choice
     kernel: str | None = None
@@ -160,6 +160,9 @@ class RunOptions:
     max_speed_m_s: float | None = None
     #: multiplies the stable time step; > 1 only to probe stability limits
     dt_factor: float = 1.0
+    #: refuse a run whose estimated step count exceeds this (days of computing, usually an
+    #: explicit scheme at a real melt viscosity); raise it to insist
+    max_steps: int = 5_000_000
     #: creeping-flow scaling of the melt viscosity (all values, ratios kept): 'auto' picks the
     #: smallest factor that keeps the Reynolds number, the gravity number and the gravity
     #: slump over the run below ``creeping_limit`` (print scenes, DFSPH only), 1.0 = off
@@ -185,8 +188,8 @@ class RunOptions:
     def validate(self) -> None:
         if self.scheme not in SCHEMES:
             raise UserInputError(f"Unknown scheme '{self.scheme}'; choose {', '.join(SCHEMES)}.")
-        if not 1e-3 <= self.spacing_mm <= 10:
-            raise UserInputError(f"Particle spacing {self.spacing_mm} mm is outside 0.001-10 mm.")
+        if not 1e-3 <= self.spacing_mm <= 100:
+            raise UserInputError(f"Particle spacing {self.spacing_mm} mm is outside 0.001-100 mm.")
         kernel, factor = self.resolved_kernel()
         if kernel not in ("cubic", "wendland_c2"):
             raise UserInputError(f"Unknown kernel '{kernel}'; choose cubic or wendland_c2.")
@@ -220,6 +223,14 @@ PAPER_PRESET = {
 }
 
 PRESETS = {"paper": PAPER_PRESET}
+
+#: named resolutions for 0.2 mm layers (3, 4 and 6 particles across the layer height), picked
+#: from the measured trade table in README.md; ``--resolution NAME`` or a spacing in mm
+RESOLUTION_PRESETS = {
+    "draft": {"run": {"spacing_mm": 0.0667}, "particles_per_layer": 3},
+    "standard": {"run": {"spacing_mm": 0.05}, "particles_per_layer": 4},
+    "fine": {"run": {"spacing_mm": 0.0333}, "particles_per_layer": 6},
+}
 
 
 def apply_overrides(obj, overrides: dict):

@@ -54,6 +54,16 @@ class Simulation:
                 f"{self.estimate['particles']:,} particles, more than the "
                 f"{available_memory_bytes() / 2**30:.1f} GiB available. Use a coarser "
                 "--resolution, fewer --layers or a smaller --region.")
+        if self.estimate["steps_estimate"] > self.run_opts.max_steps:
+            limits = self.estimate["dt_limits_s"]
+            worst = min(limits, key=limits.get)
+            advice = ("the implicit solver (--scheme dfsph) has no viscous limit" if worst == "viscous"
+                      else "use a coarser --resolution or a shorter --until")
+            raise UserInputError(
+                f"This run would need about {self.estimate['steps_estimate']:,} time steps: the "
+                f"{worst} limit holds dt at {limits[worst]:.3g} s over "
+                f"{self.estimate['simulated_time_s']:.3g} s. That is days of computing; {advice} "
+                f"(or raise RunOptions.max_steps, now {self.run_opts.max_steps:,}).")
         self._built = False
         self.snapshot_every_s = None
         self.time_s = self.plan.t_start_s
@@ -428,6 +438,7 @@ class Simulation:
     def _finish_outputs(self, summary: dict) -> None:
         if hasattr(self.scene, "write_outputs") and "error" not in summary:
             self.scene.write_outputs(self, self.out_dir)
+        summary.update(getattr(self, "bead_metrics", {}) or {})
         meso = getattr(self, "mesostructure", None)
         if meso and meso.get("sections"):
             first = meso["sections"][0]

@@ -9,6 +9,7 @@ at the commanded volume per mm), so ``--layers 2-3`` prints onto a realistic sub
 import numpy as np
 
 from ..boundaries import plate_lattice
+from ..errors import UserInputError
 from ..plan import make_plan
 from ..state import PLATE, SOLID
 from .base import InletSpec, ParticleBlock, ScenePlan
@@ -37,6 +38,7 @@ class PrintScene:
         self.nozzle_height = nozzle_height
         self.print_plan = make_plan(gcode, printer, layers=layers, until_s=until_s,
                                     region_mm=region_mm, plan_whole_file=False)
+        self.plan_section = None
 
     @property
     def selection(self):
@@ -59,6 +61,7 @@ class PrintScene:
         sel = self.selection
         traj = self.trajectory
         dx = run.spacing_m
+        self._check_resolution(dx)
         kernel, factor = run.resolved_kernel()
         H = factor * dx
         zoff = self.z_offset_m()
@@ -92,6 +95,7 @@ class PrintScene:
         direction = self._longest_bead_direction()
         speed = float(np.max(np.linalg.norm(traj.sample(times, clip=True).velocity_mm_s, axis=1))) * 1e-3
         section = self._section_point(zoff)
+        self.plan_section = (section, direction / np.linalg.norm(direction))
         return ScenePlan(
             name=self.name, domain_lo_m=lo, domain_hi_m=hi, t_start_s=t0, t_end_s=t1,
             blocks=blocks, inlet=InletSpec(sel, zoff, tip), inflow_particles=inflow,
@@ -107,6 +111,22 @@ class PrintScene:
                    "substrate_particles": int(len(substrate)),
                    "nozzle_diameter_m": traj.printer.nozzle_diameter_mm * 1e-3},
         )
+
+    def _check_resolution(self, dx: float) -> None:
+        """A layer needs at least two particles across its height, the bore three across its
+        diameter: below that no flow can be represented. Say so before anything runs."""
+        traj = self.trajectory
+        z = traj.layer_z_mm
+        heights = [z[k] - (z[k - 1] if k > 1 else 0.0) for k in self.selection.layers]
+        thinnest = min(heights) * 1e-3
+        bore = traj.printer.nozzle_diameter_mm * 1e-3
+        if thinnest / dx < 2.0 - 1e-9 or bore / dx < 3.0 - 1e-9:
+            need = min(thinnest / 2.0, bore / 3.0) * 1e3
+            raise UserInputError(
+                f"A particle spacing of {dx * 1e3:.3g} mm puts {thinnest / dx:.1f} particles across "
+                f"the {thinnest * 1e3:.3g} mm layer and {bore / dx:.1f} across the "
+                f"{bore * 1e3:.3g} mm nozzle; at least 2 and 3 are needed. Use --resolution "
+                f"{need:.3g} or finer.")
 
     def _longest_bead_direction(self) -> np.ndarray:
         traj = self.trajectory
@@ -166,10 +186,35 @@ class PrintScene:
         """Mesostructure of the last frame: sections normal to the extrusion direction."""
         from ..analysis import analyse_run
 
+        sim.bead_metrics = self.bead_metrics(sim)
         try:
             sim.mesostructure = analyse_run(out_dir)
         except Exception as exc:  # noqa: BLE001 - the run's results stand without the analysis
             print(f"warning: mesostructure analysis skipped: {exc}")
+
+    def bead_metrics(self, sim, window_mm: float = 1.0) -> dict:
+        """Material cross-section of the bead through the section point, from the particle
+        count in a window along the bead (exact: every particle is one lattice cell of melt),
+        and robust height/width (99th/1st percentiles of the particle centres plus half a
+        spacing, so that one stray particle cannot set them)."""
+        from ..state import FLUID, SOLID
+
+        x = sim.state.numpy("position", (FLUID, SOLID))
+        if self.plan_section is None or len(x) == 0:
+            return {}
+        point, direction = self.plan_section
+        dx = sim.run_opts.spacing_m
+        along = (x - point) @ direction
+        w = 0.5 * window_mm * 1e-3
+        sel = np.abs(along) < w
+        if sel.sum() < 3:
+            return {}
+        lateral = np.cross([0.0, 0.0, 1.0], direction)
+        u = (x[sel] - point) @ lateral
+        z = x[sel, 2]
+        return {"bead_material_area_mm2": float(sel.sum() * dx**3 / (2 * w) * 1e6),
+                "bead_height_p99_mm": float((np.percentile(z, 99) + 0.5 * dx) * 1e3),
+                "bead_width_p99_mm": float((np.percentile(u, 99) - np.percentile(u, 1) + dx) * 1e3)}
 
 
 def _obround_points(p0, p1, width, z_bot, h, dx, lo_xy, hi_xy) -> np.ndarray:

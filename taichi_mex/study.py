@@ -1,0 +1,215 @@
+"""The speed-accuracy trade, measured: ``python -m taichi_mex study SCENE --out DIR``.
+
+A study runs a ladder of settings (particle spacing, solver, precision, creeping-flow
+scaling, surface-area method) on one reference scene, each run in its own process, and
+writes ``DIR/trade.csv`` (one row per run: settings, particles, steps, wall time,
+particle-steps/s, errors) and ``DIR/trade.png`` (error against wall time). Errors are taken
+against an analytic result where the scene has one (shear, hydrostatic, thermal-beam), and
+for the bead against the commanded cross-section and the finest run of the ladder.
+"""
+
+import csv
+import json
+import time
+from pathlib import Path
+
+from .errors import UserInputError
+
+#: each ladder: (label, parameters for jobs.run_job_isolated); the first entry of a study is
+#: its reference when the scene has no analytic answer
+LADDERS = {
+    "bead": {
+        "base": {"gcode": "single_bead", "deposit_for_s": 0.13, "snapshots": False},
+        "runs": [
+            ("dfsph dx=0.1", {"spacing_mm": 0.1}),
+            ("dfsph dx=0.067 (draft)", {"spacing_mm": 0.0667}),
+            ("dfsph dx=0.05 (standard)", {"spacing_mm": 0.05}),
+            ("dfsph dx=0.05 f64", {"spacing_mm": 0.05, "precision": "f64"}),
+            ("dfsph dx=0.05 unscaled", {"spacing_mm": 0.05, "viscosity_scale": 1.0}),
+            ("dfsph dx=0.033 (fine)", {"spacing_mm": 0.0333}),
+            ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
+        ],
+        "quick": [
+            ("dfsph dx=0.12", {"spacing_mm": 0.12, "deposit_for_s": 0.02}),
+            ("dfsph dx=0.1", {"spacing_mm": 0.1, "deposit_for_s": 0.02}),
+        ],
+    },
+    "shear": {
+        "base": {"scene": "shear", "snapshots": False},
+        "runs": [
+            ("dfsph dx=0.4", {"spacing_mm": 0.4}),
+            ("dfsph dx=0.3", {"spacing_mm": 0.3}),
+            ("dfsph dx=0.2", {"spacing_mm": 0.2}),
+            ("dfsph dx=0.2 f64", {"spacing_mm": 0.2, "precision": "f64"}),
+            ("dfsph dx=0.15", {"spacing_mm": 0.15}),
+        ],
+        "quick": [("dfsph dx=0.5", {"spacing_mm": 0.5, "scene.until": 0.004}),
+                  ("dfsph dx=0.4", {"spacing_mm": 0.4, "scene.until": 0.004})],
+    },
+    "hydrostatic": {
+        "base": {"scene": "hydrostatic", "snapshots": False},
+        "runs": [
+            ("edac dx=1", {"scheme": "edac", "spacing_mm": 1.0}),
+            ("edac dx=0.67", {"scheme": "edac", "spacing_mm": 0.667}),
+            ("dfsph dx=1", {"scheme": "dfsph", "spacing_mm": 1.0}),
+            ("dfsph dx=0.67", {"scheme": "dfsph", "spacing_mm": 0.667}),
+            ("dfsph dx=0.5", {"scheme": "dfsph", "spacing_mm": 0.5}),
+        ],
+        "quick": [("dfsph dx=1.5", {"scheme": "dfsph", "spacing_mm": 1.5, "scene.until": 0.05}),
+                  ("edac dx=1.5", {"scheme": "edac", "spacing_mm": 1.5, "scene.until": 0.05})],
+    },
+    "thermal-beam": {
+        "base": {"scene": "thermal-beam", "snapshots": False},
+        "runs": [
+            ("eigenvalue dx=4", {"spacing_mm": 4.0, "scene.surface_method": "eigenvalue"}),
+            ("colour_gradient dx=4", {"spacing_mm": 4.0, "scene.surface_method": "colour_gradient"}),
+            ("eigenvalue dx=2", {"spacing_mm": 2.0, "scene.surface_method": "eigenvalue"}),
+            ("colour_gradient dx=2", {"spacing_mm": 2.0, "scene.surface_method": "colour_gradient"}),
+            ("colour_gradient dx=2 f64", {"spacing_mm": 2.0, "precision": "f64",
+                                         "scene.surface_method": "colour_gradient"}),
+        ],
+        "quick": [("colour_gradient dx=5", {"spacing_mm": 5.0, "scene.until": 5.0})],
+    },
+}
+
+#: the error a scene's runs are compared by, and where to find it (summary.json keys)
+ERRORS = {
+    "bead": ("bead_shape_error", None),
+    "shear": ("shear_error_max_rel_U", "shear_error_max_rel_U"),
+    "hydrostatic": ("pressure_error_rel_mean", "pressure_error_rel_mean"),
+    "thermal-beam": ("thermal_error_max_c", "thermal_error_max_c"),
+}
+
+COLUMNS = ["scene", "label", "scheme", "spacing_mm", "precision", "viscosity_scale", "status",
+           "particles", "steps", "wall_time_s", "simulated_time_s", "particle_steps_per_s",
+           "wall_per_simulated_s", "error", "error_kind", "bead_width_mm", "bead_height_mm",
+           "bead_area_mm2", "density_error_mean", "compression_error_max", "message"]
+
+
+def run_study(scene: str, out_dir: Path, quick: bool = False, timeout_s: float = 3600.0,
+              only: list[str] | None = None) -> list[dict]:
+    from .jobs import run_job_isolated
+
+    if scene not in LADDERS:
+        raise UserInputError(f"No study for '{scene}'; choose {', '.join(LADDERS)}.")
+    spec = LADDERS[scene]
+    ladder = spec["quick"] if quick else spec["runs"]
+    if only:
+        ladder = [r for r in ladder if any(o in r[0] for o in only)]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for k, (label, params) in enumerate(ladder):
+        run_dir = out_dir / f"run{k:02d}"
+        merged = {**spec["base"], **params, "cpu_threads": params.get("cpu_threads", None)}
+        merged = {key: v for key, v in merged.items() if v is not None}
+        print(f"[{k + 1}/{len(ladder)}] {label} ...", flush=True)
+        t0 = time.perf_counter()
+        record = run_job_isolated(merged, run_dir, timeout_s=timeout_s)
+        summary = _read(run_dir / "summary.json") or {}
+        row = _row(scene, label, merged, record, summary, time.perf_counter() - t0)
+        rows.append(row)
+        print(f"    {row['status']}: {row['wall_time_s']:.1f} s, {row.get('particles') or 0:,} particles"
+              + (f", error {row['error']:.4g}" if isinstance(row.get("error"), float) else ""), flush=True)
+    _bead_errors(scene, rows)
+    write_trade(rows, out_dir)
+    return rows
+
+
+def _row(scene, label, params, record, summary, wall) -> dict:
+    kind, key = ERRORS[scene]
+    err = summary.get(key) if key else None
+    scale = summary.get("viscosity_scale")
+    sim_wall = summary.get("wall_time_s") or wall
+    return {
+        "scene": scene, "label": label, "scheme": summary.get("scheme", params.get("scheme", "dfsph")),
+        "spacing_mm": summary.get("spacing_mm", params.get("spacing_mm")),
+        "precision": summary.get("precision", params.get("precision", "f32")),
+        "viscosity_scale": scale, "status": record.get("status", "failed"),
+        "particles": summary.get("particles_active"), "steps": summary.get("steps"),
+        "wall_time_s": sim_wall, "simulated_time_s": summary.get("simulated_time_s"),
+        "particle_steps_per_s": summary.get("particle_steps_per_s"),
+        "wall_per_simulated_s": summary.get("wall_time_per_simulated_s"),
+        "error": err, "error_kind": kind,
+        "bead_width_mm": summary.get("bead_width_mm"), "bead_height_mm": summary.get("bead_height_mm"),
+        "bead_area_mm2": summary.get("bead_area_mm2"),
+        "density_error_mean": summary.get("density_error_mean"),
+        "compression_error_max": summary.get("compression_error_max"),
+        "message": (record.get("error") or "")[:300],
+    }
+
+
+def _bead_errors(scene: str, rows: list[dict]) -> None:
+    """Bead shape error: the largest relative deviation of width, height and area from the
+    finest successful DFSPH run (area also against the commanded flow / speed)."""
+    if scene != "bead":
+        return
+    done = [r for r in rows if r["status"] == "done" and r.get("bead_width_mm") and r["scheme"] == "dfsph"]
+    if not done:
+        return
+    ref = min(done, key=lambda r: r["spacing_mm"])
+    for r in rows:
+        if r["status"] != "done" or not r.get("bead_width_mm"):
+            continue
+        devs = [abs(r[k] / ref[k] - 1.0) for k in ("bead_width_mm", "bead_height_mm", "bead_area_mm2")
+                if r.get(k) and ref.get(k)]
+        r["error"] = max(devs) if devs else None
+        r["error_kind"] = f"bead shape vs {ref['label']}"
+
+
+def write_trade(rows: list[dict], out_dir: Path) -> None:
+    with (out_dir / "trade.csv").open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in COLUMNS})
+    (out_dir / "trade.json").write_text(json.dumps(rows, indent=2, default=str))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for r in rows:
+        if r["status"] == "done" and isinstance(r.get("error"), (int, float)) and r["error"] > 0:
+            ax.plot(r["wall_time_s"], r["error"], "o")
+            ax.annotate(r["label"], (r["wall_time_s"], r["error"]), fontsize=7,
+                        xytext=(4, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time [s] (2-core CPU unless noted)")
+    kinds = {r["error_kind"] for r in rows if r.get("error_kind")}
+    ax.set_ylabel("error: " + "; ".join(sorted(kinds))[:80])
+    ax.set_title(f"speed-accuracy trade: {rows[0]['scene'] if rows else ''}")
+    fig.tight_layout()
+    fig.savefig(out_dir / "trade.png", dpi=120)
+    plt.close(fig)
+
+
+def _read(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def main(argv: list[str]) -> int:
+    from .cli import _Parser
+
+    p = _Parser(prog="python -m taichi_mex study",
+                description="Run a ladder of settings on a reference scene and write trade.csv")
+    p.add_argument("scene", choices=sorted(LADDERS))
+    p.add_argument("--out", type=Path, default=Path("study_out"))
+    p.add_argument("--quick", action="store_true", help="a two-run ladder (seconds, for checks)")
+    p.add_argument("--only", nargs="*", default=None, help="run only ladder labels containing these")
+    p.add_argument("--timeout", type=float, default=3600.0, help="per-run limit (s)")
+    args = p.parse_args(argv)
+    rows = run_study(args.scene, args.out, args.quick, args.timeout, args.only)
+    print(f"{sum(r['status'] == 'done' for r in rows)} of {len(rows)} runs done; "
+          f"{args.out / 'trade.csv'}, {args.out / 'trade.png'}")
+    return 0 if rows and all(r["status"] == "done" for r in rows) else 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import sys
+
+    sys.exit(main(sys.argv[1:]))
