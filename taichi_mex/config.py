@@ -70,9 +70,12 @@ class Material:
         return self.wlf_d1_pa_s * math.exp(-self.wlf_a1 * dT / (self.wlf_a2_k + dT))
 
     def validate(self) -> None:
-        for name in ("density_kg_m3", "viscosity_pa_s", "specific_heat_j_kgk", "conductivity_w_mk"):
+        for name in ("density_kg_m3", "specific_heat_j_kgk", "conductivity_w_mk"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"material {name} must be positive, got {getattr(self, name)}.")
+        if not self.viscosity_pa_s >= 0 or (self.viscosity_pa_s == 0 and self.viscosity_model != "newtonian"):
+            raise UserInputError(f"material viscosity must be positive (0 only for an inviscid "
+                                 f"Newtonian fluid), got {self.viscosity_pa_s}.")
         if self.viscosity_model not in VISCOSITY_MODELS:
             raise UserInputError(f"Unknown viscosity model '{self.viscosity_model}'; choose "
                                  f"{', '.join(VISCOSITY_MODELS)}.")

@@ -82,7 +82,7 @@ class Simulation:
         run = self.run_opts
         eta = self.material.zero_shear_viscosity(self.material.extrusion_temperature_c)
         rho, g = self.material.density_kg_m3, run.gravity_m_s2
-        if "creeping_speed_m_s" not in notes:
+        if "creeping_speed_m_s" not in notes or eta <= 0:
             scale = 1.0 if run.viscosity_scale == "auto" else float(run.viscosity_scale)
             return {"viscosity_scale": scale}
         U, L, T = notes["creeping_speed_m_s"], notes["creeping_length_m"], notes["creeping_duration_s"]
@@ -163,8 +163,9 @@ class Simulation:
             / self.material.density_kg_m3
         if run.scheme == "edac":
             h = 0.5 * H
-            limits = {"cfl": run.edac.cfl * h / (run.edac.sound_speed_m_s + v),
-                      "viscous": 0.125 * h * h / nu}
+            limits = {"cfl": run.edac.cfl * h / (run.edac.sound_speed_m_s + v)}
+            if nu > 0:
+                limits["viscous"] = 0.125 * h * h / nu
         elif run.scheme == "static":
             limits = {"max": self.plan.notes.get("max_dt_s", 1.0)}
             if "thermal_dt_s" in self.plan.notes:

@@ -13,6 +13,7 @@ summation density rho_i = m_i sum_j W_ij, walls with hydrostatically extrapolate
 import math
 
 from ..backend import ti
+from ..reduce import BlockSum
 from ..state import FLUID, INLET, NOZZLE
 
 
@@ -31,6 +32,7 @@ class EDAC:
         self.nu_edac = opts.edac_alpha * self.h * self.c / 8.0
         self.g = (0.0, 0.0, -float(gravity_m_s2))
         self.clamp = bool(opts.clamp_wall_pressure)
+        self.viscous = not (viscosity.model == "newtonian" and viscosity.eta_ref == 0.0)
         self.V = state.add("number_volume")  # m^3: 1 / sum_j W_ij (Hu & Adams volume)
         self.x0 = state.add("edac_x0", 3)
         self.v0 = state.add("edac_v0", 3)
@@ -40,6 +42,10 @@ class EDAC:
         self.xdot = state.add("edac_xdot", 3)
         self.v_ghost = state.add("wall_ghost_velocity", 3)
         self.extremes = (0.0, 0.0)  # fastest speed, largest acceleration at the last evaluation
+        self.reduce = BlockSum(state.capacity)
+        self.scratch = ti.field(float, shape=state.capacity)
+        self.scratch2 = ti.field(float, shape=state.capacity)
+        self.scratch3 = ti.field(float, shape=state.capacity)
 
     # ------------------------------------------------------------------ time step
     def time_step(self, nu_max: float) -> tuple[float, dict]:
@@ -63,18 +69,18 @@ class EDAC:
             self.v0[i] = self.state.v[i]
             self.p0[i] = self.state.p[i]
         self._advance(n, half_dt, t_eval)
-        moved = 0.0
         for i in range(n):
-            if self.state.phase[i] == FLUID:
-                ti.atomic_max(moved, self.grid.displacement(i))
-        return moved
+            self.scratch[i] = self.grid.displacement(i) if self.state.phase[i] == FLUID else 0.0
+        self.reduce.max(self.scratch, n)
+        return self.reduce.total[None]
 
     @ti.func
     def _advance(self, n, dt, t_eval):
         # Melt released by the inlet after the last evaluation has no rates yet: it keeps
-        # its inflow velocity and feels gravity only until the next evaluation.
+        # its inflow velocity and feels gravity only until the next evaluation. (dt = 0: no-op,
+        # tested inside the loop so that the loop stays at the kernel's top level, parallel.)
         for i in range(n):
-            if self.state.phase[i] == FLUID:
+            if dt > 0.0 and self.state.phase[i] == FLUID:
                 xd = self.xdot[i]
                 a = self.acc[i]
                 dp = self.dpdt[i]
@@ -98,23 +104,29 @@ class EDAC:
         self._density(n)
         self._walls(n)
         self._rates(n)
-        if dt > 0:
-            self._advance(n, dt, t_eval)
-        vmax = 0.0
-        amax = 0.0
-        bad = 0.0
+        self._advance(n, dt, t_eval)
         for i in range(n):
             ph = self.state.phase[i]
+            s = 0.0
+            a = 0.0
+            bad = 0.0
             if ph == FLUID:
                 s = self.state.v[i].norm()
+                a = self.acc[i].norm()
                 if ti.math.isnan(s) or ti.math.isinf(s):
-                    bad += 1.0
-                else:
-                    ti.atomic_max(vmax, s)
-                    ti.atomic_max(amax, self.acc[i].norm())
+                    s = 0.0
+                    bad = 1.0
             elif ph == INLET or ph == NOZZLE:
-                ti.atomic_max(vmax, self.state.v[i].norm())
-        return ti.Vector([vmax, amax, bad])
+                s = self.state.v[i].norm()
+            self.scratch[i] = s
+            self.scratch2[i] = a
+            self.scratch3[i] = bad
+        self.reduce.max(self.scratch, n)
+        vmax = self.reduce.total[None]
+        self.reduce.max(self.scratch2, n)
+        amax = self.reduce.total[None]
+        self.reduce.sum(self.scratch3, n)
+        return ti.Vector([vmax, amax, self.reduce.total[None]])
 
     @ti.func
     def _density_task(self, i, j, xij, acc: ti.template()):
@@ -176,13 +188,14 @@ class EDAC:
         p_ij = (rho_j * p_i + rho_i * p_j) / (rho_i + rho_j)
         a = -vol2 * p_ij * gw
         lap = vol2 * xij.dot(gw) / (r2 + self.eps)
-        eta_i = self.visc.eta_of(i)
         vij = st.v[i] - st.v[j]
-        if st.phase[j] == FLUID:
-            eta_j = self.visc.eta_of(j)
-            a += lap * (2.0 * eta_i * eta_j / (eta_i + eta_j + 1e-30)) * vij
-        else:
-            a += lap * eta_i * (st.v[i] - self.v_ghost[j])
+        if ti.static(self.viscous):  # PySPH also drops the term for nu = 0
+            eta_i = self.visc.eta_of(i)
+            if st.phase[j] == FLUID:
+                eta_j = self.visc.eta_of(j)
+                a += lap * (2.0 * eta_i * eta_j / (eta_i + eta_j + 1e-30)) * vij
+            else:
+                a += lap * eta_i * (st.v[i] - self.v_ghost[j])
         eta_e = 2.0 * self.nu_edac * rho_i * rho_j / (rho_i + rho_j)
         dp = (rho_i / rho_j) * self.c * self.c * st.m[j] * vij.dot(gw) * st.m[i] \
             + lap * eta_e * (p_i - p_j)

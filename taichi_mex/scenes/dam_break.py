@@ -132,10 +132,9 @@ def sound_speed_m_s(geometry: DamBreakGeometry | None = None, g_m_s2: float = 9.
 #: EDAC time step factor: PySPH's EDAC examples step with a fixed dt = 0.125 h / c0; ours,
 #: dt = cfl h / (c0 + |v|max), equals it while the flow is slow against c0
 CFL = 0.125
-#: PySPH's nu = 0 (inviscid); our Material needs a positive viscosity, and this one makes
-#: the viscous term ~1e-12 of the pressure term (EDAC's own pressure diffusion,
-#: nu_edac = h c0 / 16, does not depend on it)
-INVISCID_PA_S = 1e-9
+#: PySPH's nu = 0 (inviscid): EDAC then skips the viscous term, as PySPH does (EDAC's own
+#: pressure diffusion, nu_edac = h c0 / 16, does not depend on it)
+INVISCID_PA_S = 0.0
 
 
 def run_options(dx_m: float = 0.02) -> dict:
