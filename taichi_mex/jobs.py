@@ -313,7 +313,7 @@ def resolve(params: dict, base_dir=None) -> Resolved:
     if "spacing_mm" in params and "resolution" in params:
         raise UserInputError("Give either spacing_mm or resolution, not both.")
 
-    run = RunOptions(scheme="edac", progress=False)
+    run = RunOptions(progress=False)
     material = Material()
     preset = {}
     if "preset" in params:

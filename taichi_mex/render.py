@@ -52,16 +52,20 @@ def snapshot_set(data: dict, out_dir: Path, tag: str, field: str, spacing_m: flo
     paths = []
     direction = np.array([1.0, 0.0, 0.0]) if section_direction is None else np.asarray(section_direction, float)
     direction = direction / np.linalg.norm(direction)
-    views = {"side": (np.cross(direction, [0, 0, 1]), [0, 0, 1]), "top": ([0, 0, 1], np.array([0, 1, 0]))}
+    side = np.cross(direction, [0, 0, 1])
+    if np.linalg.norm(side) < 1e-6:  # a vertical direction (the beam scene): look along -y
+        side = np.array([0.0, -1.0, 0.0])
+    views = {"side": (side, [0, 0, 1]), "top": ([0, 0, 1], np.array([0, 1, 0]))}
     for name, (normal, up) in views.items():
         paths.append(_render(pv, pos, values, out_dir / f"{tag}_{name}.png", title, clim,
                              np.asarray(normal, float), up, radius_px, plate))
     if section_point_m is not None:
         centre = np.asarray(section_point_m, float) * 1e3
         slab = np.abs((pos - centre) @ direction) < 0.75 * spacing_m * 1e3
+        section_up = [0, 1, 0] if abs(direction[2]) > 0.9 else [0, 0, 1]
         if slab.any():
             paths.append(_render(pv, pos[slab], values[slab], out_dir / f"{tag}_section.png",
-                                 title, clim, -direction, [0, 0, 1], radius_px + 4, None,
+                                 title, clim, -direction, section_up, radius_px + 4, None,
                                  parallel=True))
     return paths
 

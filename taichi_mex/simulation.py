@@ -23,6 +23,13 @@ from .state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
 #: bytes per particle besides the registered fields: neighbour lists, sort buffers
 _TEMP_FACTOR = 2.0
 
+#: particle-steps per second measured on a 2-core CPU (README, Performance and trade
+#: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
+#: 100k-particle block); the wall-time estimate scales them with the thread count
+MEASURED_RATE_2CORE = {"edac": 1.9e6, "dfsph": 2.0e5, "static": 3.0e6}
+#: kernel compilation and set-up before the first step (s), from the same runs
+STARTUP_S = 10.0
+
 
 def available_memory_bytes() -> int:
     try:
@@ -147,7 +154,19 @@ class Simulation:
                 "memory_bytes": memory, "simulated_time_s": span, "dt_estimate_s": dt,
                 "list_skin": skin,
                 "steps_estimate": int(np.ceil(span / dt)) if dt > 0 else 0,
+                "wall_time_estimate_s": self._wall_estimate(initial, inflow, span / dt if dt > 0 else 0),
                 "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
+
+    def _wall_estimate(self, initial: int, inflow: int, steps: float) -> float | None:
+        """Wall time (s) from the measured rates: the melt grows linearly during deposition,
+        so a run costs about (initial + inflow / 2) particles x steps. None on a GPU (not
+        measured)."""
+        run = self.run_opts
+        if run.arch != "cpu" or run.scheme not in MEASURED_RATE_2CORE:
+            return None
+        threads = run.cpu_threads or os.cpu_count() or 2
+        rate = MEASURED_RATE_2CORE[run.scheme] * min(threads, os.cpu_count() or threads) / 2.0
+        return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     @staticmethod
     def _max_neighbours(factor: float) -> int:
@@ -179,7 +198,15 @@ class Simulation:
         return (f"{e['particles']:,} particles (capacity {e['capacity']:,}), about "
                 f"{e['memory_bytes'] / 2**20:.0f} MiB, {e['grid_cells']:,} grid cells; "
                 f"{e['simulated_time_s']:.4g} s simulated in about {e['steps_estimate']:,} steps "
-                f"of {e['dt_estimate_s']:.3g} s")
+                f"of {e['dt_estimate_s']:.3g} s" + self._describe_wall(e.get("wall_time_estimate_s")))
+
+    def _describe_wall(self, wall) -> str:
+        if wall is None:
+            return "; no measured rate for this architecture, so no wall-time estimate"
+        threads = self.run_opts.cpu_threads or os.cpu_count()
+        text = f"{wall:.0f} s" if wall < 120 else (f"{wall / 60:.0f} min" if wall < 7200 else f"{wall / 3600:.1f} h")
+        return (f"; about {text} of wall time on {threads} CPU thread(s) at the rates measured "
+                f"for {self.run_opts.scheme} (README, Performance)")
 
     # ----------------------------------------------------------------- building
     def build(self) -> None:

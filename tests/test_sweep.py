@@ -130,7 +130,7 @@ def test_resolve_builds_options_and_refuses_bad_values(tmp_path):
     assert res.scene_kwargs["layers"] == [1]
     gen = resolve({"layer_height_mm": 0.3, "speed_mm_s": 40})
     assert gen.gcode is None and gen.generate["pattern"] == "bead"
-    for params, message in (({"spacing_mm": 50.0}, "outside"),
+    for params, message in (({"spacing_mm": 500.0}, "outside"),
                             ({"plate_temperature_c": 60, "thermal": False}, "need heat"),
                             ({"gcode": "paper_bead", "speed_mm_s": 40}, "generated G-code"),
                             ({"gcode": "nope"}, "neither a file"),
@@ -196,7 +196,7 @@ def test_tiny_study_on_two_workers_records_failures_and_goes_on(tiny_sweep):
     records = _records(out)
     assert len(records) == 4
     by_failure = {r.get("failure"): r for r in records.values()}
-    assert "outside 0.001-10 mm" in by_failure["refused"]["error"]
+    assert "outside 0.001-100 mm" in by_failure["refused"]["error"]
     assert "blew up" in by_failure["diverged"]["error"]
     done = [r for r in records.values() if r["status"] == "done"]
     assert {r["params"]["viscosity"] for r in done} == {0.1, 0.2}

@@ -45,6 +45,7 @@ def test_lattice_cube_area_sums_for_both_methods():
     sim = beam(1.0, losses=True, width_mm=10.0, length_mm=10.0)
     sim.build()
     sim.solver.start(0.0)
+    sim.thermal.update_areas()
     true_area = 6 * (10e-3) ** 2
     flags = sim.surface.flag.to_numpy()[: sim.state.n]
     assert (flags == 1).sum() == 10**3 - 8**3  # Marrone's test finds exactly the outer layer
@@ -168,7 +169,7 @@ def test_temperature_tables_interpolate_and_are_validated():
 # ------------------------------------------------------------------ in the print
 def test_print_with_heat_writes_temperature(tmp_path):
     args = [str(bundled.gcode_path("paper_bead")), "--preset", "paper", "--resolution", "0.12",
-            "--until", "0.335", "--out", str(tmp_path), "--quiet", "--thermal",
+            "--until", "0.36", "--out", str(tmp_path), "--quiet", "--thermal",
             "--convection", "10", "--radiation", "0.92", "--field", "temperature"]
     assert main(args) == 0
     s = json.loads((tmp_path / "summary.json").read_text())
