@@ -96,8 +96,17 @@ class CollapseScene:
         # growth exponent over the last decade of samples
         tail = t >= t[-1] / 10
         exponent = float(np.polyfit(np.log(t[tail]), np.log(r[tail]), 1)[0]) if tail.sum() > 2 else float("nan")
+        # Huppert with a virtual time origin: r^8 = K (t - t0) late in the run; K^(1/8)
+        # against eta_N (g V^3 / (3 nu))^(1/8) does not depend on how the cylinder started
+        coeff_ratio = t0 = float("nan")
+        if late.sum() > 2:
+            slope, icpt = np.polyfit(t[late], r[late] ** 8, 1)
+            if slope > 0:
+                coeff_ratio = float(slope ** 0.125 / float(huppert_radius(1.0, V, nu, g)))
+                t0 = float(-icpt / slope)
         return {"front_t_s": t.tolist(), "front_r_m": r.tolist(), "huppert_r_m": ref.tolist(),
                 "front_ratio_late": float(np.mean(r[late] / ref[late])),
+                "front_coefficient_ratio": coeff_ratio, "front_virtual_origin_s": t0,
                 "front_exponent_late": exponent, "volume_m3": V, "nu_m2_s": nu}
 
     def write_outputs(self, sim, out_dir) -> None:
