@@ -52,7 +52,10 @@ def _init_gpu(precision: str, kwargs: dict) -> str:
         try:
             if name == "vulkan" and precision == "f64":
                 continue  # Taichi's Vulkan backend has no f64 arithmetic
-            ti.init(arch=target, **kwargs)
+            # a missing driver is expected here: keep Taichi's own warnings about it quiet,
+            # the message below says what matters
+            ti.init(arch=target, **{**kwargs, "log_level": ti.ERROR})
+            ti.set_logging_level(ti.WARN)
         except Exception:  # noqa: BLE001 - taichi raises assorted errors when a backend is absent
             ti.reset()
             continue

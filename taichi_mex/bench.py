@@ -95,7 +95,7 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
             "wall_per_simulated_s": wall / measure_s}
 
 
-def edac_block(target_particles: int = 100_000):
+def edac_block(target_particles: int = 100_000, arch: str = "cpu"):
     """A water-like column in a tank (EDAC, Wendland, h = 1.3 dx) of about N particles."""
     from .config import EDACOptions, Material, RunOptions
     from .scenes.hydrostatic import HydrostaticScene
@@ -108,7 +108,7 @@ def edac_block(target_particles: int = 100_000):
     scene = HydrostaticScene(width_mm=side * dx_mm, height_mm=2 * side * dx_mm, until_s=1.0)
     c = 10 * (2 * 9.81 * 2 * side * dx_mm * 1e-3) ** 0.5
     run = RunOptions(scheme="edac", spacing_mm=dx_mm, edac=EDACOptions(sound_speed_m_s=c),
-                     snapshots=False, progress=False)
+                     snapshots=False, progress=False, arch=arch)
     return Simulation(scene, run, Material(name="water-like", density_kg_m3=1000, viscosity_pa_s=1e-3))
 
 

@@ -278,6 +278,7 @@ def run_bench(argv: list[str]) -> int:
     p.add_argument("--measure", type=_positive_float, default=None,
                    help="simulated seconds to time (default: per benchmark)")
     p.add_argument("--out", type=Path, default=None, help="also write bench.json here")
+    p.add_argument("--arch", choices=["cpu", "gpu"], default="cpu", help="cpu (default) or gpu")
     args = p.parse_args(argv)
     rows = []
     if args.which == "toolpath":
@@ -285,7 +286,7 @@ def run_bench(argv: list[str]) -> int:
         bench.print_toolpath(result)
         rows.append(result)
     if args.which in ("all", "print"):
-        scene, run, material = default_print_scene()
+        scene, run, material = default_print_scene(print_parser().parse_args(["--arch", args.arch]))
         from .simulation import Simulation
 
         sim = Simulation(scene, run, material)
@@ -293,7 +294,7 @@ def run_bench(argv: list[str]) -> int:
         r = bench.bench_scene(sim, 0.1 * span, args.measure or 0.3 * span)
         rows.append({"name": f"default print ({run.scheme})", **r})
     if args.which in ("all", "edac"):
-        sim = bench.edac_block(args.particles)
+        sim = bench.edac_block(args.particles, args.arch)
         r = bench.bench_scene(sim, 2e-4, args.measure or 2e-3)
         rows.append({"name": "EDAC tank (Wendland, h=1.3dx)", **r})
     if args.which != "toolpath":

@@ -53,7 +53,7 @@ CASES = [
 ]
 
 
-def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5) -> dict:
+def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5, arch: str = "cpu") -> dict:
     """Run one case in this process; returns a row for the table (never raises)."""
     from .config import EDACOptions, Material, RunOptions
     from .gcode_gen import write_pattern
@@ -71,7 +71,7 @@ def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5) -> dict:
                               line_width_mm=max(0.45, p["layer_height_mm"] + 0.1))
         scene = PrintScene(gcode)
         run = RunOptions(scheme=p["scheme"], spacing_mm=p["spacing_mm"], precision=p["precision"],
-                         dt_factor=p["dt_factor"], viscosity_scale=1.0, progress=False,
+                         dt_factor=p["dt_factor"], viscosity_scale=1.0, progress=False, arch=arch,
                          snapshots=False, edac=EDACOptions(sound_speed_m_s=6.0))
         sim = Simulation(scene, run, Material(viscosity_pa_s=p["viscosity_pa_s"]))
         s = sim.run()
@@ -113,12 +113,13 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m taichi_mex.stability")
     p.add_argument("--out", type=Path, default=Path("stability_out"))
     p.add_argument("--fast", action="store_true", help="only the cases the test suite runs")
+    p.add_argument("--arch", choices=["cpu", "gpu"], default="cpu", help="cpu (default) or gpu")
     args = p.parse_args(argv)
     rows = []
     for k, case in enumerate(CASES):
         if args.fast and case.slow:
             continue
-        row = run_case(case, args.out / f"case{k:02d}")
+        row = run_case(case, args.out / f"case{k:02d}", arch=args.arch)
         rows.append(row)
         print(f"{case.name:32s} {row['status']:9s} {row['wall_time_s']:7.1f} s  {row['message'][:80]}",
               flush=True)

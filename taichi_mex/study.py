@@ -87,7 +87,7 @@ COLUMNS = ["scene", "label", "scheme", "spacing_mm", "precision", "viscosity_sca
 
 
 def run_study(scene: str, out_dir: Path, quick: bool = False, timeout_s: float = 3600.0,
-              only: list[str] | None = None) -> list[dict]:
+              only: list[str] | None = None, arch: str = "cpu") -> list[dict]:
     from .jobs import run_job_isolated
 
     if scene not in LADDERS:
@@ -102,6 +102,8 @@ def run_study(scene: str, out_dir: Path, quick: bool = False, timeout_s: float =
         run_dir = out_dir / f"run{k:02d}"
         merged = {**spec["base"], **params, "cpu_threads": params.get("cpu_threads", None)}
         merged = {key: v for key, v in merged.items() if v is not None}
+        if arch != "cpu":
+            merged["arch"] = arch
         print(f"[{k + 1}/{len(ladder)}] {label} ...", flush=True)
         t0 = time.perf_counter()
         record = run_job_isolated(merged, run_dir, timeout_s=timeout_s)
@@ -202,8 +204,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--quick", action="store_true", help="a two-run ladder (seconds, for checks)")
     p.add_argument("--only", nargs="*", default=None, help="run only ladder labels containing these")
     p.add_argument("--timeout", type=float, default=3600.0, help="per-run limit (s)")
+    p.add_argument("--arch", choices=["cpu", "gpu"], default="cpu", help="cpu (default) or gpu")
     args = p.parse_args(argv)
-    rows = run_study(args.scene, args.out, args.quick, args.timeout, args.only)
+    rows = run_study(args.scene, args.out, args.quick, args.timeout, args.only, args.arch)
     print(f"{sum(r['status'] == 'done' for r in rows)} of {len(rows)} runs done; "
           f"{args.out / 'trade.csv'}, {args.out / 'trade.png'}")
     return 0 if rows and all(r["status"] == "done" for r in rows) else 1

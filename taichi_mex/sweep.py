@@ -611,6 +611,9 @@ def sweep_parser() -> argparse.ArgumentParser:
                    help="list the runs and their state; run nothing")
     p.add_argument("--list-params", action="store_true", help="list the parameter names and exit")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--arch", choices=["cpu", "gpu"], default=None,
+                   help="run every run on this architecture (overrides the study's arch; not "
+                        "part of the run names, so finished runs are not redone)")
     return p
 
 
@@ -626,6 +629,9 @@ def main(argv: list[str] | None = None) -> int:
         raise UserInputError("Give a study file: python -m taichi_mex sweep STUDY.toml --out DIR "
                              "(examples/study_tiny.toml is one).")
     study = load_study(args.study)
+    if args.arch is not None:
+        for run in study.runs:
+            run.params["arch"] = args.arch
     for spec in args.plot:
         metric, sep, param = spec.partition(":")
         if not sep or not metric or not param:
