@@ -37,7 +37,9 @@ class EDACSolver:
 
     def time_step(self) -> tuple[float, dict]:
         nu = self.sim.viscosity.max_value() / self.sim.material.density_kg_m3
-        return self.edac.time_step(nu)
+        _, limits = self.edac.time_step(nu)
+        limits.update(self.sim.extra_dt_limits())  # heat's diffusion limit, when heat is on
+        return min(limits.values()), limits
 
     def step(self, t: float, dt: float) -> float:
         e = self.edac

@@ -112,7 +112,10 @@ def test_ctrl_c_stops_cleanly_and_keeps_frames(tmp_path):
     cmd = [sys.executable, "-m", "taichi_mex", str(bundled.gcode_path("paper_bead")), "--preset",
            "paper", "--resolution", "0.06", "--output-every", "0.001", "--out", str(tmp_path),
            "--quiet", "--no-snapshots"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # a shell that starts the suite in the background leaves SIGINT ignored, and the child
+    # would inherit that: give it the default disposition, as a terminal's process has
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     h5 = tmp_path / "particles.h5"
     deadline = time.time() + 240
     while time.time() < deadline:

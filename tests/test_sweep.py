@@ -249,6 +249,8 @@ dt_factor = [1.0, 0.01]   # the second run takes minutes: it is still running at
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "taichi_mex", "sweep", str(study), "--out", str(out),
                              "--workers", "1", "--quiet"], start_new_session=True,
+                            # SIGINT may be ignored in a suite started in the background
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.time() + 240
