@@ -26,7 +26,7 @@ _TEMP_FACTOR = 2.0
 #: particle-steps per second measured on a 2-core CPU (README, Performance and trade
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-MEASURED_RATE_2CORE = {"edac": 1.9e6, "dfsph": 2.6e5, "static": 3.0e6}
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "static": 3.0e6}
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 
