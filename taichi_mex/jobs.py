@@ -569,6 +569,7 @@ METRICS = {
     "voids_count": "enclosed voids in the default cross-section",
     "density_error_mean": "mean |rho/rho0 - 1| of interior melt at the end",
     "density_error_max": "largest |rho/rho0 - 1| of interior melt at the end",
+    "paired_fraction": "melt with a melt neighbour closer than half a spacing (SPH pairing)",
     "deposited_volume_mm3": "melt volume in the domain at the end",
     "commanded_volume_mm3": "volume the G-code commanded by the end",
     "cooling_time_s": "time until the slowest bead was all below the glass transition (heat on; "
@@ -634,6 +635,7 @@ def key_metrics(summary: dict | None, meso: dict | None, config_notes: dict | No
     out = {
         "density_error_mean": _number(s.get("density_error_mean")),
         "density_error_max": _number(s.get("density_error_max")),
+        "paired_fraction": _number(s.get("paired_fraction")),
         "deposited_volume_mm3": _number(s.get("deposited_volume_mm3")),
         "commanded_volume_mm3": _number(s.get("commanded_volume_mm3")),
         "cooling_time_s": _cooling_time(s, meso),
