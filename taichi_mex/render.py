@@ -64,8 +64,10 @@ def snapshot_set(data: dict, out_dir: Path, tag: str, field: str, spacing_m: flo
         slab = np.abs((pos - centre) @ direction) < 0.75 * spacing_m * 1e3
         section_up = [0, 1, 0] if abs(direction[2]) > 0.9 else [0, 0, 1]
         if slab.any():
+            # seen from +direction (the printed bead coming towards the viewer), so that the
+            # in-plane axis increases to the right, as in the analysis' section plots
             paths.append(_render(pv, pos[slab], values[slab], out_dir / f"{tag}_section.png",
-                                 title, clim, -direction, section_up, radius_px + 4, None,
+                                 title, clim, direction, section_up, radius_px + 4, None,
                                  parallel=True))
     return paths
 
@@ -85,7 +87,8 @@ def _render(pv, pos, values, path, title, clim, view_normal, up, point_px, plate
         strip = pv.Box(bounds=(lo[0] - pad, hi[0] + pad, lo[1] - pad, hi[1] + pad,
                                -0.02 * (hi[2] - lo[2] + 1e-3), 0.0))
         pl.add_mesh(strip, color="lightgray", opacity=0.6)
-    pl.show_bounds(color="black", xtitle="x [mm]", ytitle="y [mm]", ztitle="z [mm]", font_size=10)
+    pl.show_bounds(color="black", xtitle="x [mm]", ytitle="y [mm]", ztitle="z [mm]", font_size=10,
+                   fmt="%.3g")  # the default one decimal repeats labels on sub-mm beads
     centre = pos.mean(axis=0)
     span = float(np.ptp(pos, axis=0).max()) or 1.0
     pl.camera.focal_point = centre
