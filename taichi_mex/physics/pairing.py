@@ -15,7 +15,6 @@ class PairingProbe:
     def __init__(self, state, grid):
         self.state = state
         self.grid = grid
-        self.nearest = ti.field(float, shape=state.capacity)
 
     @ti.func
     def _task(self, i, j, xij, acc: ti.template()):
@@ -24,16 +23,20 @@ class PairingProbe:
             acc = ti.min(acc, xij.norm())
 
     @ti.kernel
-    def _measure(self, n: ti.i32):
+    def _count(self, n: ti.i32, r_pair: float) -> ti.types.vector(2, ti.i32):
+        fluid = 0
+        paired = 0
         for i in range(n):
-            d = 1e30
             if self.state.phase[i] == FLUID:
+                d = 1e30
                 self.grid.for_each_neighbour(i, self._task, d)
-            self.nearest[i] = d
+                fluid += 1
+                if d < r_pair:
+                    paired += 1
+        return ti.Vector([fluid, paired])
 
-    def nearest_melt_distance(self):
-        """Distance (m) from each live particle to its nearest melt neighbour within the
-        kernel support (1e30 for none, and for particles that are not fluid)."""
-        n = self.state.n
-        self._measure(n)
-        return self.nearest.to_numpy()[:n]
+    def paired_fraction(self, r_pair_m: float) -> float:
+        """Fraction of fluid particles with a melt neighbour closer than r_pair_m (0 without
+        fluid)."""
+        fluid, paired = (int(v) for v in self._count(self.state.n, r_pair_m))
+        return paired / fluid if fluid else 0.0
