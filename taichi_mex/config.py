@@ -112,7 +112,11 @@ class DFSPHOptions:
     max_divergence_error_local: float = 1e-2
     min_iterations: int = 2
     max_iterations: int = 100
-    divergence_solve: bool = True
+    #: True, False, or 'auto': off in creeping steps (every melt particle's nu dt / dx^2 >=
+    #: DFSPH.creeping_diffusion), where the viscous solve, not inertia, sets the velocity; on
+    #: the unscaled single bead it took 40 % of the wall time and changed the section by half
+    #: to one spacing, area and density errors alike (README, Single bead)
+    divergence_solve: bool | str = "auto"
     #: dt = cfl * 0.4 * spacing / |v|max (SPlisHSPlasH's form)
     cfl: float = 0.5
     max_dt_s: float = 1e-3
@@ -210,6 +214,9 @@ class RunOptions:
             raise UserInputError("EDAC needs a positive sound speed and 0 < cfl <= 1.")
         if not 0 < self.dfsph.cfl <= 2:
             raise UserInputError("DFSPH cfl must lie in (0, 2].")
+        if self.dfsph.divergence_solve not in (True, False, "auto"):
+            raise UserInputError(f"DFSPH divergence_solve is True, False or 'auto', got "
+                                 f"{self.dfsph.divergence_solve!r}.")
         if self.thermal.surface_method not in ("colour_gradient", "eigenvalue"):
             raise UserInputError(f"Unknown surface method '{self.thermal.surface_method}'; choose "
                                  "colour_gradient or eigenvalue.")

@@ -235,6 +235,16 @@ class NeighbourGrid:
                 task(i, j, xij, acc)
 
     @ti.func
+    def for_each_listed(self, i, task: ti.template(), acc: ti.template()):
+        """Call ``task(i, slot, j, x_ij, acc)`` for every entry of i's list, within H or not:
+        for solvers that cache per-pair values by list slot within one step (a cached value
+        must be zero where |x_ij| >= H)."""
+        xi = self.state.x[i]
+        for k in range(self.n_nbr[i]):
+            j = self.nbr[i, k]
+            task(i, k, j, xi - self.state.x[j], acc)
+
+    @ti.func
     def for_each_neighbour_partitioning(self, i, task: ti.template(), acc: ti.template()):
         """for_each_neighbour that also moves the neighbours within H to the front of i's list
         (a list stays a set, so reordering it is harmless). Later passes over the *same

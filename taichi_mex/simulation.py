@@ -31,7 +31,7 @@ MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "static": 3.0e6}
 STARTUP_S = 10.0
 #: measured wall time / estimate (README, Performance): the DFSPH rate comes from the single
 #: bead, and the viscosity solve needs 2-3x its iterations on the 0.4 mm layers of a block
-ESTIMATE_SPREAD = {"dfsph": (0.7, 1.9)}
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.2)}
 
 
 def available_memory_bytes() -> int:
@@ -144,7 +144,8 @@ class Simulation:
 
         skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0)
         max_nbr = self._max_neighbours(factor * (1.0 + skin))
-        per_particle = int(_TEMP_FACTOR * 40 * fp + 4 * max_nbr)
+        cached = getattr(SOLVERS[run.scheme], "cached_per_neighbour", 0)  # reals per list slot
+        per_particle = int(_TEMP_FACTOR * 40 * fp + (4 + cached * fp) * max_nbr)
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         dt, limits = self._dt_guess(H)
@@ -306,15 +307,6 @@ class Simulation:
                 f"{self.grid.max_neighbours} neighbours: the melt has clumped far beyond its "
                 "rest spacing. " + self._likely_cause())
         self.viscosity.update(self.state.n)
-
-    def nozzle_clearance(self) -> tuple[float, float, float]:
-        """Nozzle axis (x, y, relative to the origin) and the radius around it in which the
-        pressure solve may not pull (m); radius 0 without a nozzle."""
-        if self.inlet is None or self._inlet_retired:
-            return 0.0, 0.0, 0.0
-        pos = self.inlet._now[0] - self.state.origin_m
-        outer = self.inlet._tip_outer_r or self.inlet._bore_r
-        return float(pos[0]), float(pos[1]), float(outer + 2.0 * self.kernel.H)
 
     def boundary_speed(self) -> float:
         """Fastest moving wall (the nozzle and the melt sliding down its bore), m/s."""

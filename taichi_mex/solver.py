@@ -6,7 +6,7 @@ from .backend import ti
 from .physics.dfsph import DFSPH
 from .physics.edac import EDAC
 from .physics.viscosity_weiler2018 import ImplicitViscosity
-from .state import FLUID
+from .state import FLUID, FluidIndex
 
 
 class EDACSolver:
@@ -68,6 +68,8 @@ class DFSPHSolver:
 
     1. neighbour lists, densities rho_i and factors alpha_i at x_n
     2. divergence solve: make v_n divergence free                         (Alg. 2)
+       (skipped by default in creeping steps, where the viscous solve sets the velocity:
+       DFSPHOptions.divergence_solve)
     3. last step's pressure and gravity, v' = v_n - dt grad p_n / rho + dt g, then the implicit
        viscosity (I - dt/rho A_visc) v* = v' (Weiler 2018). With the pressure in the predictor
        a melt at rest sees no net force here: its weight stays on the pressure, not on
@@ -78,18 +80,23 @@ class DFSPHSolver:
 
     name = "dfsph"
     list_skin = 0.0
+    #: the implicit viscosity caches one coefficient per neighbour-list slot
+    cached_per_neighbour = 1
 
     def __init__(self, sim):
         self.sim = sim
         run = sim.run_opts
         self.opts = run.dfsph
         rho0 = sim.material.density_kg_m3
-        self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m)
+        self.fluid = FluidIndex(sim.state)
+        self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m,
+                           self.fluid, sim.viscosity)
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
                                       self.particle_mass, rho0, run.spacing_m, run.dfsph.viscosity_tolerance,
-                                      run.dfsph.viscosity_max_iterations, run.dfsph.no_slip)
+                                      run.dfsph.viscosity_max_iterations, self.fluid,
+                                      run.dfsph.no_slip)
         self.vmax = 0.0
         self.dx = run.spacing_m
         self.halvings = 0
@@ -144,18 +151,19 @@ class DFSPHSolver:
         sim.refresh_lists()
         n = sim.state.n
         d = self.dfsph
-        d.prepare(n, *sim.nozzle_clearance())
+        d.prepare(n)
         sim.heat_step(dt)  # at x_n, with this step's lists and densities
+        nf = self.fluid.update()  # after solidification too
         self._save(n)
         for attempt in range(self.retries + 1):
             if attempt:
                 self._restore(n)
                 dt *= 0.5
                 self.halvings += 1
-            if self.opts.divergence_solve:
+            if self._divergence_solve_wanted(dt):
                 iv, _ = d.divergence_solve(dt)
                 self.totals["divergence_iterations"] += iv
-            d.pressure_predictor(n, dt)
+            d.pressure_predictor(n, nf, dt)
             self._gravity(n, dt)
             ik, res = self.visc.solve(dt)
             ip, err = d.density_solve(dt)
@@ -175,6 +183,12 @@ class DFSPHSolver:
                      "viscosity_residual": res, "dt": dt}
         sim.move_boundaries(t + dt)
         return dt
+
+    def _divergence_solve_wanted(self, dt: float) -> bool:
+        wanted = self.opts.divergence_solve
+        if wanted == "auto":
+            return not self.dfsph.creeping(dt)
+        return bool(wanted)
 
     def max_speed(self) -> float:
         return self.vmax

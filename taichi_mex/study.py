@@ -26,6 +26,8 @@ LADDERS = {
             ("dfsph dx=0.05 (standard)", {"spacing_mm": 0.05}),
             ("dfsph dx=0.05 f64", {"spacing_mm": 0.05, "precision": "f64"}),
             ("dfsph dx=0.05 unscaled", {"spacing_mm": 0.05, "viscosity_scale": 1.0}),
+            ("dfsph dx=0.05 unscaled, divergence solve on",
+             {"spacing_mm": 0.05, "viscosity_scale": 1.0, "run.dfsph.divergence_solve": True}),
             ("dfsph dx=0.033 (fine)", {"spacing_mm": 0.0333}),
             ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
         ],

@@ -25,6 +25,11 @@ expansion: their k is held at 0). Both solves are warm-started with half of the 
 step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
 mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
 
+Tension (k < 0) is applied in the difference form sum_j V_j (k_j - k_i) grad W_ij: the
+symmetric G pulls every particle under tension towards its densest neighbours, which clumped
+28 % of the single bead's melt into pairs (SPH's tensile instability); the difference form
+feels only pressure gradients. The solves keep the symmetric system (see _release_tension).
+
 Walls here (plate, nozzle, solidified melt, the melt column in the bore) are lattices at
 the fluid's spacing and at least one support radius thick, so every wall particle stands
 for one lattice cell: V_b = V0. Akinci's adaptive V_b = 1 / sum_k W_bk is meant for
@@ -58,7 +63,8 @@ class DFSPH:
     #: nozzle): SPH's tensile instability. The divergence solve may pull inside the melt.
     density_compression_only = False
     #: inside the melt (away from the free surface and the nozzle) expansions are corrected
-    #: too, but only this fraction per step: full tension there is SPH's tensile instability
+    #: too, but only this fraction per step: the single bead blew up within 50-80 steps at
+    #: 0.5 and 1.0 (both tension forms)
     tension_relaxation = 0.2
     #: where the divergence solve also removes expansion rates: 'none' (the paper: compression
     #: only), 'interior' (away from the free surface and the nozzle) or 'everywhere'
@@ -69,12 +75,26 @@ class DFSPH:
     #: particle shifting, D = beta dx^2 per step; off: at beta = 0.5 it wrecked the hydrostatic
     #: pressure (56 % error) without fixing bead shapes
     shifting = 0.0
+    #: how tension (k < 0) acts in creeping steps: 'difference' (gradients only, see
+    #: _release_tension) or 'symmetric' (the papers' G, which pairs melt under tension; kept for
+    #: tests/test_tension.py, and it blew up the single bead with tension near the nozzle)
+    tension_form = "difference"
+    #: a step is creeping where nu dt / dx^2 >= this (viscous diffusion over about 3 spacings
+    #: per step; single bead: 650 scaled, 6.5e4 unscaled). The difference form acts only there:
+    #: it does not conserve momentum, which the viscous solve spreads out at once in a creeping
+    #: melt, but which accumulates in a water-like fluid (the hydrostatic tank at 1 Pa s,
+    #: nu dt / dx^2 ~ 1, blew up with it). divergence_solve='auto' skips creeping steps.
+    creeping_diffusion = 10.0
     #: 'cg' (default) or 'jacobi' (the paper's relaxed sweeps, omega 0.5)
     method = "cg"
     omega = 0.5
 
-    def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float):
+    def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float, fluid,
+                 viscosity=None):
         self.state = state
+        self.fl = fluid  # state.FluidIndex, current for this step
+        self.viscosity = viscosity
+        self.has_viscosity = viscosity is not None
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -97,6 +117,9 @@ class DFSPH:
         self.Ap = ti.field(float, shape=cap)
         self.Gp = ti.Vector.field(3, float, shape=cap)
         self.grad_c = ti.Vector.field(3, float, shape=cap)  # gradient of the kernel sum, for shifting
+        # 2 sum_fluid V grad W + sum_wall V grad W: what a uniform k adds to G(k)_i per unit k
+        self.grad_uniform = ti.Vector.field(3, float, shape=cap)
+        self.kappa_predicted = ti.field(float, shape=cap)  # kappa as the predictor applied it
         self.term = ti.field(float, shape=cap)
         self.sum = BlockSum(cap)
         # rz, cg alpha, beta, mean error, iterations, done, n_fluid, error scale
@@ -121,16 +144,22 @@ class DFSPH:
         gV = self.V0 * self.K.F(xij.norm()) * xij
         if self.state.phase[j] == FLUID:
             acc[0] += gV.dot(gV)
+            for d in ti.static(range(3)):
+                acc[4 + d] += gV[d]
         for d in ti.static(range(3)):
             acc[1 + d] += gV[d]
 
     @ti.kernel
-    def prepare(self, n: ti.i32, tip_x: float, tip_y: float, clear_r: float):
+    def prepare(self, n: ti.i32):
         """Densities, neighbour counts, no-tension flags and alpha at x_n.
 
-        No tension at the free surface, nor in the melt around the moving nozzle (within
-        clear_r of its axis, or touching it): there it would glue the melt to the tip and
-        tear it, which blew up every run we tried. The deposited bead behind may pull."""
+        No tension at the free surface, nor in melt touching the nozzle or the bore's melt
+        column: there it would glue the melt to the moving tip. With the symmetric G it also
+        had to stay off within a tip radius of the nozzle axis, where it clumped and blew up
+        every run; the difference form lets it act there, which keeps the melt from dilating
+        as the tip's trailing edge releases it. (Switching it off around the nozzle while it
+        travels released the accumulated tension at once and blew up the unscaled paper block
+        earlier, at 0.76 s instead of 1.37 s.)"""
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -138,18 +167,18 @@ class DFSPH:
                 self.state.rho[i] = self.rho0 * acc[0]
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
-                xi = self.state.x[i]
-                near_nozzle = (xi[0] - tip_x) ** 2 + (xi[1] - tip_y) ** 2 < clear_r * clear_r
-                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0 or near_nozzle
+                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0
                 self.surface[i] = 1 if no_tension else 0
-                f = ti.Vector([0.0, 0.0, 0.0, 0.0])
+                f = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._factor_task, f)
                 s = f[0] + f[1] * f[1] + f[2] * f[2] + f[3] * f[3]
                 self.alpha[i] = 1.0 / s if s > 0.0 else 0.0
                 self.grad_c[i] = ti.Vector([f[1], f[2], f[3]])  # grad of C = sum_j V_j W_ij
+                self.grad_uniform[i] = ti.Vector([f[1] + f[4], f[2] + f[5], f[3] + f[6]])
             else:
                 self.state.rho[i] = self.rho0
                 self.alpha[i] = 0.0
+                self.grad_uniform[i] = ti.Vector([0.0, 0.0, 0.0])
 
     # ------------------------------------------------------------------ operators
     @ti.func
@@ -176,13 +205,15 @@ class DFSPH:
     @ti.func
     def _apply(self, n, guard):
         """Gp = G(p) for fluid, Ap = D(Gp) on active particles."""
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if guard == 0:
                 g = ti.Vector([0.0, 0.0, 0.0])
                 if self.state.phase[i] == FLUID:
                     self.grid.for_each_neighbour(i, self._grad_task, g)
                 self.Gp[i] = g
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if guard == 0:
                 a = 0.0
                 if self.active[i] == 1:
@@ -192,7 +223,8 @@ class DFSPH:
     @ti.func
     def _source(self, n, dt, density: ti.template()):
         """b = (rho*/rho0 - 1)/dt^2 or D(v)/dt; fix the active set; term = |b| for the error."""
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if self.s[5] != 0.0:
                 continue
             b = 0.0
@@ -228,15 +260,17 @@ class DFSPH:
     @ti.func
     def _kick(self, n, dt, kfield: ti.template()):
         """v -= dt G(kfield) for fluid (kfield copied into p first)."""
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             self.p[i] = kfield[i]
         self._apply(n, 0)
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if self.state.phase[i] == FLUID:
                 self.state.v[i] -= dt * self.Gp[i]
 
     @ti.kernel
-    def pressure_predictor(self, n: ti.i32, dt: float):
+    def pressure_predictor(self, n: ti.i32, nf: ti.i32, dt: float):
         """v -= dt G(kappa): last step's pressure, applied with gravity before the viscous solve
         (incremental pressure projection, van Kan 1986). Operator splitting otherwise lets
         gravity set the melt falling at g dt every step, which the implicit viscosity stops only
@@ -248,7 +282,41 @@ class DFSPH:
             if self.state.phase[i] != FLUID or self.surface[i] == 1:
                 k = 0.0
             self.kappa[i] = k
-        self._kick(n, dt, self.kappa)
+            self.kappa_predicted[i] = k
+        self._kick(nf, dt, self.kappa)
+        if ti.static(self.tension_form == "difference"):
+            for slot in range(nf):
+                i = self.fl.index[slot]
+                if self.state.phase[i] == FLUID and self._creeping(i, dt):
+                    self.state.v[i] += dt * ti.min(self.kappa[i], 0.0) * self.grad_uniform[i]
+
+    @ti.func
+    def _creeping(self, i, dt):
+        eta = 0.0
+        if ti.static(self.has_viscosity):
+            eta = self.viscosity.eta_of(i)
+        return eta / self.rho0 * dt >= self.creeping_diffusion * self.dx * self.dx
+
+    @ti.kernel
+    def _release_tension(self, n: ti.i32, dt: float, density: ti.template()):
+        """Take the uniform part of this solve's tension back out of the velocity.
+
+        G(k)_i = sum_j V_j (k_j - k_i) grad W_ij + k_i grad_uniform_i: the second term is the
+        only one a uniform k produces. For k > 0 it pushes particles apart towards an even
+        spacing, for k < 0 it pulls each particle towards its densest neighbours, and that is
+        what clumps melt under tension into pairs (Swegle et al. 1995). Where k < 0 we keep
+        the difference form, which feels pressure gradients only: the solves' system stays the
+        symmetric D G (CG needs it), and the small mismatch D(k_i grad_uniform_i), ~0 in
+        ordered melt, is corrected by the next step's solves."""
+        for slot in range(n):
+            i = self.fl.index[slot]
+            if self.state.phase[i] == FLUID and self._creeping(i, dt):
+                k = 0.0
+                if ti.static(density):
+                    k = ti.min(self.kappa[i], 0.0) - ti.min(self.kappa_predicted[i], 0.0)
+                else:
+                    k = ti.min(self.kappa_v[i], 0.0)
+                self.state.v[i] += dt * k * self.grad_uniform[i]
 
     # ------------------------------------------------------------------ CG
     @ti.kernel
@@ -261,14 +329,16 @@ class DFSPH:
         change only and adds it to kappa."""
         if ti.static(not density):
             self._source(n, dt, density)
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 k = 0.0
                 if self.active[i] == 1:
                     k = 0.5 * self.kappa_v[i] / dt
                 self.k[i] = k
             self._kick(n, dt, self.k)
         self._source(n, dt, density)
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if ti.static(not density):
                 self.kappa_v[i] = self.k[i]
             r = self.b[i] if self.active[i] == 1 else 0.0
@@ -277,18 +347,20 @@ class DFSPH:
             self.z[i] = z
             self.p[i] = z
             self.term[i] = r * z
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.s[0] = self.sum.total[None]
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             self.term[i] = ti.abs(self.r[i])
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
         self._largest(n, scale)
 
     @ti.func
     def _largest(self, n, scale):
         self.emax[None] = 0.0
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             ti.atomic_max(self.emax[None], self.term[i] * scale)
 
     @ti.kernel
@@ -296,11 +368,13 @@ class DFSPH:
                  scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
         for _ in ti.static(range(self.chunk)):
             self._apply(n, ti.cast(self.s[5], ti.i32))
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 self.term[i] = self.p[i] * self.Ap[i]
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._alpha_step()
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.s[5] == 0.0:
                     a = self.s[1]
                     if self.state.phase[i] == FLUID:
@@ -313,14 +387,16 @@ class DFSPH:
                     self.r[i] = r
                     self.z[i] = self.alpha[i] * r
                     self.term[i] = ti.abs(r)
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._largest(n, scale)
             self._error(tol, tol_local, scale, min_iter)
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 self.term[i] = self.r[i] * self.z[i]
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._beta()
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.s[5] == 0.0:
                     self.p[i] = self.z[i] + self.s[2] * self.p[i]
         return ti.Vector([self.s[3], self.s[4], self.emax[None]])
@@ -330,7 +406,8 @@ class DFSPH:
                 scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
         """Bender & Koschier's relaxed Jacobi sweeps (k = omega alpha b), `chunk` per launch."""
         for _ in ti.static(range(self.chunk)):
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.s[5] == 0.0:
                     k = self.omega * self.alpha[i] * self.b[i]
                     self.p[i] = k
@@ -338,17 +415,19 @@ class DFSPH:
                         self.kappa[i] += k
                     else:
                         self.kappa_v[i] += k
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.s[5] == 0.0:
                     g = ti.Vector([0.0, 0.0, 0.0])
                     if self.state.phase[i] == FLUID:
                         self.grid.for_each_neighbour(i, self._grad_task, g)
                     self.Gp[i] = g
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.s[5] == 0.0 and self.state.phase[i] == FLUID:
                     self.state.v[i] -= dt * self.Gp[i]
             self._source(n, dt, density)
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._largest(n, scale)
             self._count_and_check(tol, tol_local, scale, min_iter)
         return ti.Vector([self.s[3], self.s[4], self.emax[None]])
@@ -393,7 +472,7 @@ class DFSPH:
     # ------------------------------------------------------------------ solves
     def _solve(self, dt: float, density: bool, tol: float, tol_local: float, min_iter: int,
                max_iter: int) -> tuple[int, float]:
-        n = self.state.n
+        n = self.fl.n
         self.s.fill(0.0)
         self._count_fluid(n)
         # mean |residual| times dt^2 (density) or dt (divergence) = mean predicted error
@@ -412,10 +491,19 @@ class DFSPH:
                     break
         return iters, err
 
+    def creeping(self, dt: float) -> bool:
+        """Every melt particle in the creeping regime this step (see creeping_diffusion)."""
+        if self.viscosity is None:
+            return False
+        nu = self.viscosity.min_value() / self.rho0
+        return nu * dt >= self.creeping_diffusion * self.dx * self.dx
+
     def divergence_solve(self, dt: float) -> tuple[int, float]:
         o = self.opts
         iters, err = self._solve(dt, False, o.max_divergence_error, o.max_divergence_error_local,
                                  0, o.max_iterations)
+        if self.tension_form == "difference":
+            self._release_tension(self.fl.n, dt, False)
         self.stats["divergence_iterations"] = iters
         return iters, err
 
@@ -423,14 +511,19 @@ class DFSPH:
         o = self.opts
         iters, err = self._solve(dt, True, o.max_density_error, o.max_density_error_local,
                                  o.min_iterations, o.max_iterations)
+        if self.tension_form == "difference":
+            self._release_tension(self.fl.n, dt, True)
         self.stats["density_iterations"] = iters
         return iters, err
 
     @ti.kernel
     def _count_fluid(self, n: ti.i32):
-        for i in range(n):
+        for i in range(self.fl.total[None]):
+            self.term[i] = 0.0  # off the list it stays 0 for this solve's sums
+        for slot in range(n):
+            i = self.fl.index[slot]
             self.term[i] = 1.0 if self.state.phase[i] == FLUID else 0.0
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.s[6] = self.sum.total[None]
 
     @ti.kernel

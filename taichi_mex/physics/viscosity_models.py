@@ -32,6 +32,7 @@ class MeltViscosity:
         self.has_T = temperature is not None
         self.eta = state.add("viscosity")  # Pa s
         self._max_eta = ti.field(float, shape=())
+        self._min_eta = ti.field(float, shape=())
         self.shear_rate = state.add("shear_rate") if self.model == "cross_wlf" else None
         if self.model != "newtonian" and temperature is None:
             # without heat the melt sits at the extrusion temperature
@@ -55,6 +56,15 @@ class MeltViscosity:
         self._max_eta[None] = 0.0
         self._reduce_max(self.state.n)
         return float(self._max_eta[None])
+
+    def min_value(self) -> float:
+        """Lowest melt viscosity now (Pa s; the reference value while there is no melt)."""
+        if self.model == "newtonian":
+            return self.eta_ref
+        self._min_eta[None] = float("inf")
+        self._reduce_min(self.state.n)
+        value = float(self._min_eta[None])
+        return value if value < float("inf") else self.eta_ref
 
     @ti.func
     def eta_of(self, i):
@@ -113,6 +123,12 @@ class MeltViscosity:
                 if ti.static(self.model == "cross_wlf"):
                     eta = eta / (1.0 + (eta * self.shear_rate[i] / self.tau) ** (1.0 - self.n_exp))
                 self.eta[i] = eta
+
+    @ti.kernel
+    def _reduce_min(self, n: ti.i32):
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                ti.atomic_min(self._min_eta[None], self.eta[i])
 
     @ti.kernel
     def _reduce_max(self, n: ti.i32):

@@ -47,8 +47,10 @@ class ImplicitViscosity:
     chunk = 4  # CG iterations per kernel launch
 
     def __init__(self, state, grid, kernel, viscosity, mass_kg: float, rho0: float,
-                 spacing_m: float, tolerance: float, max_iterations: int, no_slip: bool = True):
+                 spacing_m: float, tolerance: float, max_iterations: int, fluid,
+                 no_slip: bool = True):
         self.state = state
+        self.fl = fluid  # state.FluidIndex: every loop here runs over fluid only
         self.grid = grid
         self.K = kernel
         self.visc = viscosity
@@ -70,6 +72,8 @@ class ImplicitViscosity:
         self.p = ti.Vector.field(3, float, shape=cap)
         self.Ap = ti.Vector.field(3, float, shape=cap)
         self.Binv = ti.Matrix.field(3, 3, float, shape=cap)
+        # c F of every listed pair, computed once per step: the iterations only read it
+        self.cF = ti.field(float, shape=(cap, grid.max_neighbours))
         self.term = ti.field(float, shape=cap)
         self.sum = BlockSum(cap)
         self.scalars = ti.field(float, shape=8)  # rz, alpha, beta, |b|^2, |r|^2, iterations, done
@@ -91,40 +95,45 @@ class ImplicitViscosity:
         return c
 
     @ti.func
-    def _apply_task(self, i, j, xij, acc: ti.template()):
+    def _apply_task(self, i, slot, j, xij, acc: ti.template()):
         # acc[0:3]: sum over pairs of c F ((u_i - u_j) . x) x, with u_b = 0 (walls live in rhs)
-        r2 = xij.norm_sqr()
-        cF = self._coef(i, j, r2) * self.K.F(ti.sqrt(r2))
         uj = ti.Vector([0.0, 0.0, 0.0])
         if self.state.phase[j] == FLUID:
             uj = self.p[j]
-        acc += cF * (self.p[i] - uj).dot(xij) * xij
+        acc += self.cF[i, slot] * (self.p[i] - uj).dot(xij) * xij
 
     @ti.func
-    def _rhs_task(self, i, j, xij, acc: ti.template()):
-        if self.state.phase[j] != FLUID:
-            r2 = xij.norm_sqr()
-            cF = self._coef(i, j, r2) * self.K.F(ti.sqrt(r2))
-            acc += cF * self.state.v[j].dot(xij) * xij
-
-    @ti.func
-    def _block_task(self, i, j, xij, acc: ti.template()):
+    def _setup_task(self, i, slot, j, xij, acc: ti.template()):
+        """Cache c F for the step's iterations; accumulate the wall term of the rhs (acc[0:3])
+        and the 3x3 diagonal block (acc[3:12], row-major)."""
         r2 = xij.norm_sqr()
-        cF = self._coef(i, j, r2) * self.K.F(ti.sqrt(r2))
-        acc += cF * xij.outer_product(xij)
+        cF = 0.0
+        if r2 < self.K.H * self.K.H:
+            cF = self._coef(i, j, r2) * self.K.F(ti.sqrt(r2))
+        self.cF[i, slot] = cF
+        if ti.static(self.no_slip):
+            if self.state.phase[j] != FLUID:
+                w = cF * self.state.v[j].dot(xij) * xij
+                for d in ti.static(range(3)):
+                    acc[d] += w[d]
+        for a in ti.static(range(3)):
+            for b in ti.static(range(3)):
+                acc[3 + 3 * a + b] += cF * xij[a] * xij[b]
 
     # ---------------------------------------------------------------- setup
     @ti.kernel
     def _setup(self, n: ti.i32, dt: float) -> float:
         """rhs = v* - dt sum_b (wall velocity term); B^-1; x0 = v* + last change; r0, z0, p0."""
-        for i in range(n):
+        for i in range(self.fl.total[None]):
+            self.term[i] = 0.0  # off the list it stays 0 for this solve's sums
+        for slot in range(n):
+            i = self.fl.index[slot]
             if self.state.phase[i] == FLUID:
-                acc = ti.Vector([0.0, 0.0, 0.0])
-                if ti.static(self.no_slip):
-                    self.grid.for_each_neighbour(i, self._rhs_task, acc)
-                self.rhs[i] = self.state.v[i] - dt * acc
-                B = ti.Matrix.zero(float, 3, 3)
-                self.grid.for_each_neighbour(i, self._block_task, B)
+                acc = ti.Vector.zero(float, 12)
+                self.grid.for_each_listed(i, self._setup_task, acc)
+                self.rhs[i] = self.state.v[i] - dt * ti.Vector([acc[0], acc[1], acc[2]])
+                B = ti.Matrix([[acc[3], acc[4], acc[5]], [acc[6], acc[7], acc[8]],
+                               [acc[9], acc[10], acc[11]]])
                 self.Binv[i] = (ti.Matrix.identity(float, 3) - dt * B).inverse()
                 self.x[i] = self.state.v[i] + self.vdiff[i]
                 self.p[i] = self.x[i]
@@ -133,33 +142,37 @@ class ImplicitViscosity:
                 self.x[i] = ti.Vector([0.0, 0.0, 0.0])
                 self.p[i] = ti.Vector([0.0, 0.0, 0.0])
         self._apply(n, dt)  # Ap = A x0
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             r = self.rhs[i] - self.Ap[i]
             self.r[i] = r
             z = self.Binv[i] @ r
             self.z[i] = z
             self.p[i] = z
             self.term[i] = r.dot(z)
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.scalars[0] = self.sum.total[None]
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             self.term[i] = self.rhs[i].norm_sqr()
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.scalars[3] = self.sum.total[None]
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             self.term[i] = self.r[i].norm_sqr()
-        self.sum.sum(self.term, n)
+        self.sum.sum(self.term, self.fl.total[None])
         self.scalars[4] = self.sum.total[None]
         return self.scalars[4] / ti.max(self.scalars[3], 1e-300)
 
     @ti.func
     def _apply(self, n, dt):
         # scalars[6] = 1 once converged: later unrolled iterations of a launch do nothing
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if self.scalars[6] == 0.0:
                 if self.state.phase[i] == FLUID:
                     acc = ti.Vector([0.0, 0.0, 0.0])
-                    self.grid.for_each_neighbour(i, self._apply_task, acc)
+                    self.grid.for_each_listed(i, self._apply_task, acc)
                     self.Ap[i] = self.p[i] - dt * acc
                 else:
                     self.Ap[i] = ti.Vector([0.0, 0.0, 0.0])
@@ -169,11 +182,13 @@ class ImplicitViscosity:
     def _iterate(self, n: ti.i32, dt: float, tol2: float) -> ti.types.vector(2, float):
         for _ in ti.static(range(self.chunk)):
             self._apply(n, dt)
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 self.term[i] = self.p[i].dot(self.Ap[i])
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._alpha()
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.scalars[6] == 0.0:
                     a = self.scalars[1]
                     self.x[i] += a * self.p[i]
@@ -182,13 +197,15 @@ class ImplicitViscosity:
                     z = self.Binv[i] @ r
                     self.z[i] = z
                     self.term[i] = r.norm_sqr()
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._residual(tol2)
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 self.term[i] = self.r[i].dot(self.z[i])
-            self.sum.sum(self.term, n)
+            self.sum.sum(self.term, self.fl.total[None])
             self._beta()
-            for i in range(n):
+            for slot in range(n):
+                i = self.fl.index[slot]
                 if self.scalars[6] == 0.0:
                     self.p[i] = self.z[i] + self.scalars[2] * self.p[i]
         return ti.Vector([self.scalars[4] / ti.max(self.scalars[3], 1e-300), self.scalars[5]])
@@ -222,7 +239,8 @@ class ImplicitViscosity:
 
     @ti.kernel
     def _finish(self, n: ti.i32):
-        for i in range(n):
+        for slot in range(n):
+            i = self.fl.index[slot]
             if self.state.phase[i] == FLUID:
                 self.vdiff[i] = self.x[i] - self.state.v[i]
                 self.state.v[i] = self.x[i]
@@ -231,7 +249,7 @@ class ImplicitViscosity:
     def solve(self, dt: float) -> tuple[int, float]:
         """Replace the fluid velocities v* by the implicit viscous update; returns
         (iterations, relative residual)."""
-        n = self.state.n
+        n = self.fl.n
         self.scalars.fill(0.0)
         rel2 = float(self._setup(n, dt))
         iters = 0
