@@ -29,9 +29,9 @@ _TEMP_FACTOR = 2.0
 MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "static": 3.0e6}
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
-#: measured wall time / estimate (README, Performance): the DFSPH rate comes from the single
-#: bead, and the viscosity solve needs 2-3x its iterations on the 0.4 mm layers of a block
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.2)}
+#: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
+#: rate; the default bead now runs 3.5x faster, blocks (3x its viscosity iterations) 1.1-1.4x
+ESTIMATE_SPREAD = {"dfsph": (0.3, 0.9)}
 
 
 def available_memory_bytes() -> int:

@@ -63,8 +63,8 @@ class DFSPH:
     #: nozzle): SPH's tensile instability. The divergence solve may pull inside the melt.
     density_compression_only = False
     #: inside the melt (away from the free surface and the nozzle) expansions are corrected
-    #: too, but only this fraction per step: the single bead blew up within 50-80 steps at
-    #: 0.5 and 1.0 (both tension forms)
+    #: too, but only this fraction per step: with the difference form the unscaled single
+    #: bead blew up at 0.3, 0.4, 0.5 and 1.0 (after 46-842 steps)
     tension_relaxation = 0.2
     #: where the divergence solve also removes expansion rates: 'none' (the paper: compression
     #: only), 'interior' (away from the free surface and the nozzle) or 'everywhere'
@@ -90,11 +90,10 @@ class DFSPH:
     omega = 0.5
 
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float, fluid,
-                 viscosity=None):
+                 viscosity):
         self.state = state
         self.fl = fluid  # state.FluidIndex, current for this step
-        self.viscosity = viscosity
-        self.has_viscosity = viscosity is not None
+        self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -292,10 +291,7 @@ class DFSPH:
 
     @ti.func
     def _creeping(self, i, dt):
-        eta = 0.0
-        if ti.static(self.has_viscosity):
-            eta = self.viscosity.eta_of(i)
-        return eta / self.rho0 * dt >= self.creeping_diffusion * self.dx * self.dx
+        return self.viscosity.eta_of(i) / self.rho0 * dt >= self.creeping_diffusion * self.dx * self.dx
 
     @ti.kernel
     def _release_tension(self, n: ti.i32, dt: float, density: ti.template()):
@@ -493,8 +489,6 @@ class DFSPH:
 
     def creeping(self, dt: float) -> bool:
         """Every melt particle in the creeping regime this step (see creeping_diffusion)."""
-        if self.viscosity is None:
-            return False
         nu = self.viscosity.min_value() / self.rho0
         return nu * dt >= self.creeping_diffusion * self.dx * self.dx
 
