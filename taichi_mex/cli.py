@@ -177,9 +177,30 @@ def run_simulation(sim, out_dir: Path, snapshot_every: float | None = None) -> d
         print(f"deposited {summary['deposited_volume_mm3']:.4f} mm^3 of "
               f"{summary['commanded_volume_mm3']:.4f} mm^3 commanded; density error mean "
               f"{100 * summary['density_error_mean']:.3f} %, max {100 * summary['density_error_max']:.3f} %")
+    for warning in run_warnings(summary, sim.run_opts):
+        print(f"warning: {warning}")
     print(f"results in {out_dir}: particles.h5, particles.xdmf, summary.json"
           + (", snapshots/" if sim.run_opts.snapshots else ""))
     return summary
+
+
+def run_warnings(summary: dict, run) -> list[str]:
+    """What went wrong in a run that still finished: lost melt, unconverged viscous solves."""
+    out = []
+    lost = summary.get("particles_lost", 0)
+    if lost:
+        ejected = summary.get("droplets_ejected", 0)
+        why = (f"{ejected} of them droplets flung faster than the ejection speed"
+               if ejected else "flung off the nozzle or the part")
+        out.append(f"{lost} melt particles left the domain ({why})")
+    worst = summary.get("viscosity_residual_worst")
+    tol = run.dfsph.viscosity_tolerance
+    if worst is not None and worst > 10 * tol:
+        out.append(f"the implicit viscosity solve stopped short of its tolerance in at least one "
+                   f"step (worst relative residual {worst:.2g} against {tol:g}); raise "
+                   f"DFSPHOptions.viscosity_max_iterations ({run.dfsph.viscosity_max_iterations}) "
+                   "or lower the CFL factor")
+    return out
 
 
 def run_print(argv: list[str]) -> int:

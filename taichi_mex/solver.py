@@ -90,7 +90,7 @@ class DFSPHSolver:
         rho0 = sim.material.density_kg_m3
         self.fluid = FluidIndex(sim.state)
         self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m,
-                           self.fluid, sim.viscosity)
+                           self.fluid, sim.viscosity, sim.plan.notes.get("speed_scale_m_s", 0.0))
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
@@ -100,6 +100,8 @@ class DFSPHSolver:
         self.vmax = 0.0
         self.dx = run.spacing_m
         self.halvings = 0
+        self.ejected = 0
+        self.clamped = 0
         cap = sim.state.capacity
         self.saved_v = ti.Vector.field(3, float, shape=cap)
         self.saved_k = ti.Vector.field(2, float, shape=cap)
@@ -129,6 +131,8 @@ class DFSPHSolver:
     #: a step whose pressure solve leaves melt moving more than this many spacings is
     #: redone with half the time step (the CFL bound uses the velocities before the solve)
     max_travel = 0.5
+    #: a step that slows more than this fraction of the melt to DFSPH.clamp_speed blew up
+    clamp_alarm = 0.01
     retries = 4
 
     @ti.kernel
@@ -176,6 +180,12 @@ class DFSPHSolver:
         self.worst["density_error"] = max(self.worst["density_error"], err)
         out = d.finish(n, dt, d.shifting * self.dx * self.dx)
         self.vmax = float(out[0])
+        self.ejected += int(out[2])
+        self.clamped += int(out[3])
+        if out[3] > max(self.clamp_alarm * nf, 10):
+            sim.diverged(t + dt, f"{int(out[3])} of {nf} melt particles moved faster than "
+                                 f"{d.clamp_speed:.3g} m/s in one creeping step (the clamp speed, "
+                                 "DFSPH.clamp_speed_factor times the nozzle's fastest move)")
         if out[1] > 0:
             sim.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                  "the pressure solve")
@@ -202,6 +212,8 @@ class DFSPHSolver:
             "pressure_error_worst": self.worst["density_error"],
             "viscosity_residual_worst": self.worst["viscosity_residual"],
             "time_step_halvings": self.halvings,
+            "droplets_ejected": self.ejected,
+            "speed_clamped_particle_steps": self.clamped,
         }
 
 

@@ -62,3 +62,20 @@ def test_arc_and_inch_files_exit_2_without_traceback(tmp_path, body, fragment):
                            "--out", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert fragment in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
+    from taichi_mex.cli import run_warnings
+    from taichi_mex.config import RunOptions
+
+    run = RunOptions(scheme="dfsph")
+    clean = {"particles_lost": 0, "viscosity_residual_worst": 9.9e-4}
+    assert run_warnings(clean, run) == []
+    assert run_warnings({"particles_lost": 0}, run) == []  # EDAC: no viscous solve
+    bad = run_warnings({"particles_lost": 11, "viscosity_residual_worst": 1.68}, run)
+    assert len(bad) == 2
+    assert bad[0].startswith("11 melt particles left the domain (flung off")
+    ejected = run_warnings({"particles_lost": 3, "droplets_ejected": 2}, run)
+    assert ejected == ["3 melt particles left the domain (2 of them droplets flung faster than "
+                       "the ejection speed)"]
+    assert "1.7 against 0.001" in bad[1] and "viscosity_max_iterations (500)" in bad[1]

@@ -114,3 +114,37 @@ def test_single_bead_at_real_viscosity_is_not_paired(tmp_path):
     assert s["compression_error_max"] < 0.05
     commanded_area_mm2 = 0.08142  # single_bead.gcode: 0.45 x 0.2 mm rounded rectangle
     assert s["bead_material_area_mm2"] == pytest.approx(commanded_area_mm2, rel=0.03)
+
+
+def _fastest_melt_in_paper_block(tmp_path, **dfsph_attrs):
+    """Fastest melt (m/s), the summary and the nozzle's speed scale over the unscaled paper
+    block's first bead and the lift and travel after it, at 4 particles per 0.4 mm layer."""
+    from taichi_mex import bundled
+    from taichi_mex.physics.dfsph import DFSPH
+    from taichi_mex.scenes.print import PrintScene
+
+    scene = PrintScene(bundled.gcode_path("paper_block_3x3"), until_s=0.6)
+    speeds = []
+    scene.monitor = lambda sim, t: speeds.append(sim.solver.max_speed())
+    saved = {k: getattr(DFSPH, k) for k in dfsph_attrs}
+    for k, v in dfsph_attrs.items():
+        setattr(DFSPH, k, v)
+    try:
+        sim = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, viscosity_scale=1.0,
+                                           progress=False, snapshots=False),
+                         Material(), out_dir=tmp_path)
+        s = sim.run()
+    finally:
+        for k, v in saved.items():
+            setattr(DFSPH, k, v)
+    return max(speeds), s, sim.plan.notes["speed_scale_m_s"]
+
+
+def test_unscaled_block_travel_does_not_fling_melt(tmp_path):
+    """The nozzle lifts off the first bead and travels back (the scene's speed scale is the
+    fastest nozzle move). Melt torn between tip and bead used to be pulled shut at a speed
+    ~ 1/dt; the unscaled block then blew up part-way. Measured 2026-12-01 (first 0.8 s):
+    fastest melt 0.41-0.73 m/s in both runs before the closing-speed limit, 0.07 m/s with it."""
+    fastest, s, nozzle = _fastest_melt_in_paper_block(tmp_path)
+    assert fastest < 2.5 * nozzle
+    assert s["droplets_ejected"] == 0 and s["particles_lost"] == 0

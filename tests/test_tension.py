@@ -1,4 +1,5 @@
-"""How DFSPH applies tension (k < 0): the difference form feels pressure gradients only.
+"""How DFSPH applies tension (k < 0): the difference form feels pressure gradients only;
+how fast tension closes gaps; what happens to melt it flings.
 
 A uniform negative k inside a disordered melt is no pressure gradient, so it must not move
 anything; the papers' symmetric G instead pulls each particle towards its densest neighbours,
@@ -15,13 +16,19 @@ from taichi_mex.state import FLUID
 DT = 1e-3  # with 1e4 Pa s at 1 mm spacing: nu dt / dx^2 = 1e4, a creeping step
 
 
-def _kick_of_uniform_tension(form: str):
-    """Velocity change of deep-interior melt under k = -1 everywhere, and grad C there."""
-    sim = Simulation(HydrostaticScene(width_mm=9, height_mm=9, until_s=0.1),
+def _creeping_tank(width_mm: float, height_mm: float) -> Simulation:
+    """A built weightless tank of 1e4 Pa s melt at 1 mm spacing."""
+    sim = Simulation(HydrostaticScene(width_mm=width_mm, height_mm=height_mm, until_s=0.1),
                      RunOptions(scheme="dfsph", spacing_mm=1.0, progress=False, snapshots=False,
                                 gravity_m_s2=0.0),
                      Material(name="creeping melt", density_kg_m3=1000.0, viscosity_pa_s=1e4))
     sim.build()
+    return sim
+
+
+def _kick_of_uniform_tension(form: str):
+    """Velocity change of deep-interior melt under k = -1 everywhere, and grad C there."""
+    sim = _creeping_tank(9, 9)
     d = sim.solver.dfsph
     d.tension_form = form
     dx = sim.run_opts.spacing_m
@@ -86,3 +93,90 @@ def test_divergence_solve_option_is_validated(bad):
 
     with pytest.raises(UserInputError, match="divergence_solve"):
         RunOptions(dfsph=DFSPHOptions(divergence_solve=bad)).validate()
+
+
+def _contraction_speed(dt: float, closing_speed: float) -> float:
+    """Fastest melt after one density solve on a creeping melt stretched 5 % upwards."""
+    sim = _creeping_tank(7, 9)
+    d = sim.solver.dfsph
+    d.closing_speed = closing_speed  # before the solve's kernels compile
+    n = sim.state.n
+    x = sim.state.x.to_numpy()
+    fluid = sim.state.phase.to_numpy()[:n] == FLUID
+    z = x[:n, 2][fluid]
+    x[:n, 2][fluid] = z.min() + 1.05 * (z - z.min())  # stretched up through the open top
+    sim.state.x.from_numpy(x)
+    sim.grid.stale = True
+    sim.refresh_lists()
+    d.prepare(n)
+    sim.solver.fluid.update()
+    sim.state.v.fill(0.0)
+    assert d.creeping(dt)
+    d.density_solve(dt)
+    fluid = sim.state.phase.to_numpy()[:n] == FLUID
+    return float(np.linalg.norm(sim.state.v.to_numpy()[:n][fluid], axis=1).max())
+
+
+def test_tension_closes_gaps_no_faster_than_the_closing_speed():
+    """A fixed fraction of a gap per step closes it at a speed ~ 1/dt: when melt torn by the
+    nozzle cut the step, the pull grew and flung particles (the unscaled paper block blew up).
+    Limited to the closing speed U, the fraction U dt / dx closes gaps at a speed set by U."""
+    U = 0.01  # m/s: at dx = 1 mm, U dt / dx < tension_relaxation for both steps below
+    limited = [_contraction_speed(dt, U) for dt in (1e-3, 1e-4)]
+    free = [_contraction_speed(dt, 0.0) for dt in (1e-3, 1e-4)]
+    assert 0.0 < limited[0] < U and 0.0 < limited[1] < U
+    assert 0.5 < limited[1] / limited[0] < 2.0
+    assert free[1] / free[0] > 5.0  # without the limit, ten times shorter steps pull ~10x faster
+    assert free[1] > 10 * U
+
+
+def test_a_flung_droplet_leaves_the_run_as_lost_melt():
+    """Isolated melt (<= DFSPH.isolated_neighbours neighbours) faster than the ejection speed
+    is dropped and counted, instead of setting the time step or tripping the blow-up check."""
+    sim = _creeping_tank(7, 9)
+    d = sim.solver.dfsph
+    d.eject_speed = 0.1  # m/s; weightless, the tank has no speed scale of its own
+    n = sim.state.n
+    x = sim.state.x.to_numpy()
+    v = sim.state.v.to_numpy()
+    fluid = np.flatnonzero(sim.state.phase.to_numpy()[:n] == FLUID)
+    surface = fluid[x[fluid, 2] > x[fluid, 2].max() - 0.1 * sim.run_opts.spacing_m]
+    middle = x[surface, :2].mean(axis=0)
+    top = surface[np.argmin(np.linalg.norm(x[surface, :2] - middle, axis=1))]  # far from walls
+    x[top, 2] += 2.5 * sim.run_opts.spacing_m  # beyond the support radius of the surface
+    v[:] = 0.0
+    v[top] = [0.0, 0.0, 0.5]
+    sim.state.x.from_numpy(x)
+    sim.state.v.from_numpy(v)
+    sim.grid.stale = True
+    melt_before = int(fluid.size)
+    sim.lost_particles = 0  # run() starts this count
+    sim.solver.step(0.0, 1e-4)
+    assert sim.solver.ejected == 1
+    x = sim.state.x.to_numpy()[:sim.state.n]
+    gone = x[:, 0] > 100.0  # parked outside every domain, at rest: it sets no time step
+    assert gone.sum() == 1 and np.abs(sim.state.v.to_numpy()[:sim.state.n][gone]).max() == 0.0
+    sim.refresh_lists()
+    assert sim.grid.lost_total == 1
+    assert int((sim.state.phase.to_numpy()[:sim.state.n] == FLUID).sum()) == melt_before - 1
+
+
+@pytest.mark.parametrize("alarm", [1.0, 0.01])
+def test_creeping_melt_is_slowed_to_the_clamp_speed_and_a_mass_kick_stops_the_run(alarm):
+    """Released from rest, the weightless tank's pressure solve kicks the melt at its walls to
+    ~1.7 m/s in one 1e-4 s step (it corrects the lattice's wall density error at once). Slowed
+    to 1 m/s that is 28 of its 441 particles: counted, or above 1 % of the melt, a blow-up."""
+    from taichi_mex.errors import SimulationDiverged
+
+    sim = _creeping_tank(7, 9)
+    sim.solver.dfsph.clamp_speed = 1.0  # m/s
+    sim.solver.clamp_alarm = alarm
+    sim.state.v.fill(0.0)
+    sim.lost_particles = 0
+    if alarm < 0.05:
+        with pytest.raises(SimulationDiverged, match="melt particles moved faster than 1 m/s"):
+            sim.solver.step(0.0, 1e-4)
+        return
+    sim.solver.step(0.0, 1e-4)
+    assert 10 < sim.solver.clamped < 0.2 * sim.solver.fluid.n
+    assert sim.solver.max_speed() <= 1.0 + 1e-5

@@ -29,6 +29,10 @@ Tension (k < 0) is applied in the difference form sum_j V_j (k_j - k_i) grad W_i
 symmetric G pulls every particle under tension towards its densest neighbours, which clumped
 28 % of the single bead's melt into pairs (SPH's tensile instability); the difference form
 feels only pressure gradients. The solves keep the symmetric system (see _release_tension).
+In creeping steps a gap closes by at most the fraction U dt / dx per step (U: the scene's
+speed scale, the fastest nozzle move): a fixed fraction per step pulls at a speed ~ 1/dt, so
+when melt torn between the lifting nozzle and the bead shortened the step, the pull grew,
+flung particles, shortened the step further, and the unscaled paper block blew up.
 
 Walls here (plate, nozzle, solidified melt, the melt column in the bore) are lattices at
 the fluid's spacing and at least one support radius thick, so every wall particle stands
@@ -63,8 +67,9 @@ class DFSPH:
     #: nozzle): SPH's tensile instability. The divergence solve may pull inside the melt.
     density_compression_only = False
     #: inside the melt (away from the free surface and the nozzle) expansions are corrected
-    #: too, but only this fraction per step: with the difference form the unscaled single
-    #: bead blew up at 0.3, 0.4, 0.5 and 1.0 (after 46-842 steps)
+    #: too, but only this fraction per step (and in creeping steps at most closing_speed dt / dx):
+    #: with the difference form the unscaled single bead blew up at 0.3, 0.4, 0.5 and 1.0
+    #: (after 46-842 steps)
     tension_relaxation = 0.2
     #: where the divergence solve also removes expansion rates: 'none' (the paper: compression
     #: only), 'interior' (away from the free surface and the nozzle) or 'everywhere'
@@ -89,11 +94,28 @@ class DFSPH:
     method = "cg"
     omega = 0.5
 
+    #: tension closes gaps in a creeping melt at most this times the scene's speed scale
+    closing_speed_factor = 1.0
+    #: melt with at most this many neighbours moving faster than eject_speed_factor times the
+    #: speed scale is a droplet flung off the nozzle: it leaves the run (counted as lost), where
+    #: its flight would set the time step or trip the blow-up check
+    isolated_neighbours = 4
+    eject_speed_factor = 3.0
+    #: in creeping steps melt is slowed to this times the speed scale: a melt at Re ~ 1e-5
+    #: moves with the nozzle, so anything 5x faster is a numerical kick (from the pressure
+    #: solve, at melt the viscous solve barely couples), which otherwise cut the step until the
+    #: run blew up; the solver counts these and stops the run when they are not rare
+    clamp_speed_factor = 5.0
+
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float, fluid,
-                 viscosity):
+                 viscosity, speed_scale_m_s: float = 0.0):
         self.state = state
         self.fl = fluid  # state.FluidIndex, current for this step
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
+        # fastest a creeping melt's gaps close, and the droplet ejection speed (m/s; 0: off)
+        self.closing_speed = self.closing_speed_factor * float(speed_scale_m_s)
+        self.eject_speed = self.eject_speed_factor * float(speed_scale_m_s)
+        self.clamp_speed = self.clamp_speed_factor * float(speed_scale_m_s)
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -158,7 +180,7 @@ class DFSPH:
         every run; the difference form lets it act there, which keeps the melt from dilating
         as the tip's trailing edge releases it. (Switching it off around the nozzle while it
         travels released the accumulated tension at once and blew up the unscaled paper block
-        earlier, at 0.76 s instead of 1.37 s.)"""
+        earlier, at 0.76 s instead of 1.37 s, before the closing-speed limit.)"""
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
@@ -241,7 +263,7 @@ class DFSPH:
                         act = 0  # free surface opening up: no tension there
                         b = 0.0
                     elif b < 0.0:
-                        b *= self.tension_relaxation  # pull gaps shut over several steps
+                        b *= self._tension_fraction(i, dt)  # pull gaps shut over several steps
                 else:
                     if self.n_count[i] < 20:
                         act = 0  # too few neighbours for a divergence estimate
@@ -288,6 +310,14 @@ class DFSPH:
                 i = self.fl.index[slot]
                 if self.state.phase[i] == FLUID and self._creeping(i, dt):
                     self.state.v[i] += dt * ti.min(self.kappa[i], 0.0) * self.grad_uniform[i]
+
+    @ti.func
+    def _tension_fraction(self, i, dt):
+        f = self.tension_relaxation
+        if ti.static(self.closing_speed > 0.0):
+            if self._creeping(i, dt):
+                f = ti.min(f, self.closing_speed * dt / self.dx)
+        return f
 
     @ti.func
     def _creeping(self, i, dt):
@@ -529,10 +559,12 @@ class DFSPH:
         return vmax
 
     @ti.kernel
-    def finish(self, n: ti.i32, dt: float, shift: float) -> ti.types.vector(2, float):
+    def finish(self, n: ti.i32, dt: float, shift: float) -> ti.types.vector(4, float):
         """Pressure for output (p = kappa rho^2 / rho0), the divergence stiffness made
-        dt-independent for the next warm start, fluid moved; returns (max fluid speed,
-        non-finite fluid particles).
+        dt-independent for the next warm start, flung droplets ejected (moved far outside the
+        domain: the next sort drops them as lost), creeping melt slowed to clamp_speed, fluid
+        moved; returns (max fluid speed, non-finite fluid particles, droplets ejected, melt
+        slowed).
 
         The density solve's k is pressure-like (the compression a step creates scales with
         dt^2); the divergence solve's k scales with 1/dt, so it is stored times dt.
@@ -545,8 +577,22 @@ class DFSPH:
         its gaps, so D is a fixed fraction of dx^2 per step (no shift on a uniform lattice)."""
         vmax = 0.0
         bad = 0.0
+        ejected = 0.0
+        clamped = 0.0
         for i in range(n):
             if self.state.phase[i] == FLUID:
+                if ti.static(self.eject_speed > 0.0):
+                    if (self.n_count[i] <= self.isolated_neighbours
+                            and self.state.v[i].norm() > self.eject_speed):
+                        self.state.x[i] = ti.Vector([1e3, 1e3, 1e3])
+                        self.state.v[i] = ti.Vector([0.0, 0.0, 0.0])
+                        ejected += 1.0
+                        continue
+                if ti.static(self.clamp_speed > 0.0):
+                    speed = self.state.v[i].norm()
+                    if speed > self.clamp_speed and self._creeping(i, dt):
+                        self.state.v[i] *= self.clamp_speed / speed
+                        clamped += 1.0
                 rho = self.state.rho[i]
                 self.state.p[i] = self.kappa[i] * rho * rho / self.rho0
                 self.kappa_v[i] *= dt
@@ -565,4 +611,4 @@ class DFSPH:
                     bad += 1.0
                 else:
                     ti.atomic_max(vmax, s)
-        return ti.Vector([vmax, bad])
+        return ti.Vector([vmax, bad, ejected, clamped])
