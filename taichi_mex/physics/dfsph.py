@@ -96,9 +96,9 @@ class DFSPH:
 
     #: tension closes gaps in a creeping melt at most this times the scene's speed scale
     closing_speed_factor = 1.0
-    #: melt with at most this many neighbours moving faster than eject_speed_factor times the
-    #: speed scale is a droplet flung off the nozzle: it leaves the run (counted as lost), where
-    #: its flight would set the time step or trip the blow-up check
+    #: in creeping steps, melt with at most this many neighbours moving faster than
+    #: eject_speed_factor times the speed scale is a droplet flung off the nozzle: it leaves the
+    #: run (counted as lost), where its flight would set the time step or trip the blow-up check
     isolated_neighbours = 4
     eject_speed_factor = 3.0
     #: in creeping steps melt is slowed to this times the speed scale: a melt at Re ~ 1e-5
@@ -583,7 +583,8 @@ class DFSPH:
             if self.state.phase[i] == FLUID:
                 if ti.static(self.eject_speed > 0.0):
                     if (self.n_count[i] <= self.isolated_neighbours
-                            and self.state.v[i].norm() > self.eject_speed):
+                            and self.state.v[i].norm() > self.eject_speed
+                            and self._creeping(i, dt)):  # a splash in water is physics
                         self.state.x[i] = ti.Vector([1e3, 1e3, 1e3])
                         self.state.v[i] = ti.Vector([0.0, 0.0, 0.0])
                         ejected += 1.0
