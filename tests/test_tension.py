@@ -165,7 +165,8 @@ def test_a_flung_droplet_leaves_the_run_as_lost_melt():
 def test_creeping_melt_is_slowed_to_the_clamp_speed_and_a_mass_kick_stops_the_run(alarm):
     """Released from rest, the weightless tank's pressure solve kicks the melt at its walls to
     ~1.7 m/s in one 1e-4 s step (it corrects the lattice's wall density error at once). Slowed
-    to 1 m/s that is 28 of its 441 particles: counted, or above 1 % of the melt, a blow-up."""
+    to 1 m/s that is 28 of its 441 particles: counted, or (with the alarm at 1 % of the melt)
+    a blow-up."""
     from taichi_mex.errors import SimulationDiverged
 
     sim = _creeping_tank(7, 9)
