@@ -581,17 +581,17 @@ class DFSPH:
         clamped = 0.0
         for i in range(n):
             if self.state.phase[i] == FLUID:
+                speed = self.state.v[i].norm()
+                creeping = self._creeping(i, dt)  # a splash in water is physics: left alone
                 if ti.static(self.eject_speed > 0.0):
-                    if (self.n_count[i] <= self.isolated_neighbours
-                            and self.state.v[i].norm() > self.eject_speed
-                            and self._creeping(i, dt)):  # a splash in water is physics
+                    if (creeping and self.n_count[i] <= self.isolated_neighbours
+                            and speed > self.eject_speed):
                         self.state.x[i] = ti.Vector([1e3, 1e3, 1e3])
                         self.state.v[i] = ti.Vector([0.0, 0.0, 0.0])
                         ejected += 1.0
                         continue
                 if ti.static(self.clamp_speed > 0.0):
-                    speed = self.state.v[i].norm()
-                    if speed > self.clamp_speed and self._creeping(i, dt):
+                    if creeping and speed > self.clamp_speed:
                         self.state.v[i] *= self.clamp_speed / speed
                         clamped += 1.0
                 rho = self.state.rho[i]
