@@ -90,7 +90,7 @@ class DFSPHSolver:
         rho0 = sim.material.density_kg_m3
         self.fluid = FluidIndex(sim.state)
         self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m,
-                           self.fluid, sim.viscosity, sim.plan.notes.get("speed_scale_m_s", 0.0))
+                           sim.viscosity, sim.plan.notes.get("speed_scale_m_s", 0.0))
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
@@ -160,6 +160,7 @@ class DFSPHSolver:
         d.prepare(n)
         sim.heat_step(dt)  # at x_n, with this step's lists and densities
         nf = self.fluid.update()  # after solidification too
+        d.rows.update()
         self._save(n)
         for attempt in range(self.retries + 1):
             if attempt:
@@ -169,7 +170,7 @@ class DFSPHSolver:
             if self._divergence_solve_wanted(dt):
                 iv, _ = d.divergence_solve(dt)
                 self.totals["divergence_iterations"] += iv
-            d.pressure_predictor(n, nf, dt)
+            d.pressure_predictor(n, dt)
             self._gravity(n, dt)
             ik, res = self.visc.solve(dt)
             ip, err = d.density_solve(dt)

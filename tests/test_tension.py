@@ -42,12 +42,13 @@ def _kick_of_uniform_tension(form: str):
     sim.refresh_lists()  # re-sorts: read the phases again
     fluid = sim.state.phase.to_numpy()[:n] == FLUID
     d.prepare(n)
-    nf = sim.solver.fluid.update()
+    sim.solver.fluid.update()
+    d.rows.update()
     kappa = np.zeros(sim.state.capacity, dtype=d.kappa.to_numpy().dtype)
     kappa[:n][fluid] = -1.0
     d.kappa.from_numpy(kappa)
     sim.state.v.fill(0.0)
-    d.pressure_predictor(n, nf, DT)
+    d.pressure_predictor(n, DT)
 
     x = sim.state.x.to_numpy()[:n]
     surface = d.surface.to_numpy()[:n] == 1
@@ -110,6 +111,7 @@ def _contraction_speed(dt: float, closing_speed: float) -> float:
     sim.refresh_lists()
     d.prepare(n)
     sim.solver.fluid.update()
+    d.rows.update()
     sim.state.v.fill(0.0)
     assert d.creeping(dt)
     d.density_solve(dt)
