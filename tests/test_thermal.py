@@ -185,18 +185,5 @@ def test_print_with_heat_writes_temperature(tmp_path):
     assert (tmp_path / "snapshots" / "final_side.png").stat().st_size > 5000
 
 
-def test_isothermal_scene_builds_no_heat(tmp_path):
-    """Model only what a scene requires: without heat there is no temperature field, no
-    surface-area field, no thermal time-step limit and no temperature in the outputs."""
-    from taichi_mex.scenes.hydrostatic import HydrostaticScene
-
-    run = RunOptions(scheme="dfsph", spacing_mm=1.5, progress=False, snapshots=False)
-    sim = Simulation(HydrostaticScene(width_mm=6, height_mm=9, until_s=0.01), run,
-                     Material(name="test fluid", density_kg_m3=1000.0, viscosity_pa_s=1.0),
-                     out_dir=tmp_path)
-    s = sim.run()
-    assert sim.thermal is None and sim.solidification is None
-    assert not {"temperature", "surface_area", "glass_since"} & set(sim.state.fields())
-    assert "thermal" not in s["last_dt_limits_s"] and "temperature_min_c" not in s
-    with h5py.File(tmp_path / "particles.h5") as h5:
-        assert "temperature" not in h5["frames"][sorted(h5["frames"])[-1]]
+# An isothermal scene builds no heat: tests/test_dfsph.py::test_hydrostatic_pressure_dfsph
+# checks it on a run it makes anyway (one kernel compile less).

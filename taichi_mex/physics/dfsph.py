@@ -195,6 +195,8 @@ class DFSPH:
         # rz, cg alpha, beta, mean error, iterations, done, n_fluid, error scale
         self.s = ti.field(float, shape=8)
         self.emax = ti.field(float, shape=())  # largest |residual| (scaled like s[3] by `scale`)
+        self.rho_peak = ti.field(float, shape=())  # densest melt at x_n (set by prepare)
+        self.rho_row = ti.field(float, shape=cap)  # density an inlet row sees (fluid's share)
         self.stats = {"density_iterations": 0, "divergence_iterations": 0}
 
     # ------------------------------------------------------------------ per step
@@ -243,11 +245,13 @@ class DFSPH:
         as the tip's trailing edge releases it. (Switching it off around the nozzle while it
         travels released the accumulated tension at once and blew up the unscaled paper block
         earlier, at 0.76 s instead of 1.37 s, before the closing-speed limit.)"""
+        self.rho_peak[None] = 0.0
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._density_task, acc)
                 self.state.rho[i] = self.rho0 * acc[0]
+                ti.atomic_max(self.rho_peak[None], self.state.rho[i])
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
                 no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0
@@ -266,7 +270,8 @@ class DFSPH:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._inlet_row_task, acc)
                 own = acc[0] - acc[1]
-                self.state.rho[i] = self.rho0 * (acc[0] - ti.max(own - 1.0, 0.0))
+                self.rho_row[i] = self.rho0 * (acc[0] - ti.max(own - 1.0, 0.0))
+                self.state.rho[i] = self.rho0  # as any wall, for the other physics
                 self.n_count[i] = ti.cast(acc[4], ti.i32)
                 self.surface[i] = 1  # compression only
                 coupled = acc[2] > 0.0 and acc[2] >= self.inlet_row_min_coupling * acc[3]
@@ -361,7 +366,7 @@ class DFSPH:
                 if ti.static(density and self.inlet_rows) and self.state.phase[i] == INLET and self.alpha[i] > 0.0:
                     div = 0.0
                     self.grid.for_each_neighbour(i, self._vdiv_task, div)
-                    b = (self.state.rho[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
+                    b = (self.rho_row[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
                     if b > 0.0:
                         act = 1
                     else:
