@@ -157,8 +157,10 @@ class FluidIndex:
     particle spends most of its small loops skipping walls. Rebuild after every re-sort (the
     indices follow the storage order) and after phase changes."""
 
-    def __init__(self, state: ParticleState):
+    def __init__(self, state: ParticleState, with_inlet: bool = False):
         self.state = state
+        #: list the bore's melt column too (the density solve's boundary rows)
+        self.with_inlet = with_inlet
         self.index = ti.field(ti.i32, shape=state.capacity)
         #: all live particles: the solvers sum per-particle terms over this range (zero off
         #: the list), so their sums, and with them every iteration count, round as before
@@ -171,7 +173,8 @@ class FluidIndex:
         count = 0
         ti.loop_config(serialize=True)  # in order: the solvers' block sums stay deterministic
         for i in range(n):
-            if self.state.phase[i] == FLUID:
+            ph = self.state.phase[i]
+            if ph == FLUID or (ti.static(self.with_inlet) and ph == INLET):
                 self.index[count] = i
                 count += 1
         return count

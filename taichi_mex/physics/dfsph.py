@@ -50,7 +50,7 @@ import numpy as np
 
 from ..backend import ti
 from ..reduce import BlockSum
-from ..state import FLUID, INLET, NOZZLE
+from ..state import FLUID, INLET, NOZZLE, FluidIndex
 
 
 def rest_volume(kernel, spacing_m: float) -> float:
@@ -60,35 +60,6 @@ def rest_volume(kernel, spacing_m: float) -> float:
     X, Y, Z = np.meshgrid(r, r, r, indexing="ij")
     d = np.sqrt(X**2 + Y**2 + Z**2)
     return float(1.0 / kernel.W_np(d).sum())
-
-
-@ti.data_oriented
-class SolveRows:
-    """Indices, in storage order, of the particles the solves loop over: the fluid, and with
-    ``with_inlet`` the melt column in the bore (rows of the density solve only)."""
-
-    def __init__(self, state, with_inlet: bool):
-        self.state = state
-        self.with_inlet = with_inlet
-        self.index = ti.field(ti.i32, shape=state.capacity)
-        self.total = ti.field(ti.i32, shape=())  # all live particles: the range of the sums
-        self.n = 0
-
-    @ti.kernel
-    def _build(self, n: ti.i32) -> ti.i32:
-        self.total[None] = n
-        count = 0
-        ti.loop_config(serialize=True)  # in order: the block sums stay deterministic
-        for i in range(n):
-            ph = self.state.phase[i]
-            if ph == FLUID or (ti.static(self.with_inlet) and ph == INLET):
-                self.index[count] = i
-                count += 1
-        return count
-
-    def update(self) -> int:
-        self.n = int(self._build(self.state.n))
-        return self.n
 
 
 @ti.data_oriented
@@ -159,7 +130,7 @@ class DFSPH:
         self.state = state
         # the particles the solves loop over (fluid, and the inlet column's rows); the solver
         # updates it after every sort and phase change
-        self.rows = SolveRows(state, self.inlet_rows)
+        self.rows = FluidIndex(state, with_inlet=self.inlet_rows)
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
         # fastest a creeping melt's gaps close, and the droplet ejection speed (m/s; 0: off)
         self.closing_speed = self.closing_speed_factor * float(speed_scale_m_s)
