@@ -74,7 +74,10 @@ class DFSPHSolver:
        viscosity (I - dt/rho A_visc) v* = v' (Weiler 2018). With the pressure in the predictor
        a melt at rest sees no net force here: its weight stays on the pressure, not on
        friction at no-slip walls, and a creeping bead does not fall at g dt per step
-    4. constant-density solve on v* for the pressure increment: v_{n+1}     (Alg. 3)
+    4. constant-density solve on v* for the pressure increment: v_{n+1}     (Alg. 3);
+       then the density is summed at x_n + dt v_{n+1}, and where melt is still compressed
+       more than DFSPHOptions.compression_check the solve is repeated from that density
+       (the solve itself only sees the linear prediction rho + dt D(v))
     5. x_{n+1} = x_n + dt v_{n+1}; the nozzle moves to t + dt
     """
 
@@ -100,6 +103,7 @@ class DFSPHSolver:
         self.vmax = 0.0
         self.dx = run.spacing_m
         self.halvings = 0
+        self.corrections = 0
         self.ejected = 0
         self.clamped = 0
         cap = sim.state.capacity
@@ -178,6 +182,16 @@ class DFSPHSolver:
             self._gravity(n, dt)
             ik, res = self.visc.solve(dt)
             ip, err = d.density_solve(dt)
+            moved = None
+            if self.opts.compression_check is not None:
+                moved = d.moved_compression(d.rows.n, dt)
+                for _ in range(self.opts.compression_corrections):
+                    if moved <= self.opts.compression_check:
+                        break
+                    ic, err = d.correct_compression(dt)
+                    ip += ic
+                    self.corrections += 1
+                    moved = d.moved_compression(d.rows.n, dt)
             self.totals["viscosity_iterations"] += ik
             self.totals["density_iterations"] += ip
             vmax = float(d.max_fluid_speed(n))
@@ -197,7 +211,9 @@ class DFSPHSolver:
             sim.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                  "the pressure solve")
         self.last = {"density_iterations": ip, "viscosity_iterations": ik, "density_error": err,
-                     "viscosity_residual": res, "dt": dt}
+                     "viscosity_residual": res, "dt": dt,
+                     # the densest melt this step leaves, summed at the new positions
+                     "moved_compression": moved}
         sim.move_boundaries(t + dt)
         return dt
 
@@ -227,6 +243,7 @@ class DFSPHSolver:
             "pressure_error_worst": self.worst["density_error"],
             "viscosity_residual_worst": self.worst["viscosity_residual"],
             "time_step_halvings": self.halvings,
+            "compression_corrections": self.corrections,
             "droplets_ejected": self.ejected,
             "speed_clamped_particle_steps": self.clamped,
             # largest compression of any melt particle over all steps, and its mean over steps

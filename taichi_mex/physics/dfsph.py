@@ -168,6 +168,12 @@ class DFSPH:
         self.emax = ti.field(float, shape=())  # largest |residual| (scaled like s[3] by `scale`)
         self.rho_peak = ti.field(float, shape=())  # densest melt at x_n (set by prepare)
         self.rho_row = ti.field(float, shape=cap)  # density an inlet row sees (fluid's share)
+        # the density a melt particle's source starts from: rho at x_n, or, in a compression
+        # correction, the summed density at the new positions less its linear part (see
+        # correct_compression)
+        self.rho_src = ti.field(float, shape=cap)
+        self.compress_only = ti.field(ti.i32, shape=())  # 1: this solve corrects compression only
+        self.step_dt = ti.field(float, shape=())
         self.stats = {"density_iterations": 0, "divergence_iterations": 0}
 
     # ------------------------------------------------------------------ per step
@@ -222,6 +228,7 @@ class DFSPH:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._density_task, acc)
                 self.state.rho[i] = self.rho0 * acc[0]
+                self.rho_src[i] = self.state.rho[i]
                 ti.atomic_max(self.rho_peak[None], self.state.rho[i])
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
@@ -313,12 +320,13 @@ class DFSPH:
                 div = 0.0
                 self.grid.for_each_neighbour(i, self._vdiv_task, div)
                 if ti.static(density):
-                    b = (self.state.rho[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
+                    b = (self.rho_src[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
                 else:
                     b = div / dt
                 act = 1
                 if ti.static(density):
-                    if (self.surface[i] == 1 or ti.static(self.density_compression_only)) and b <= 0.0:
+                    if (self.surface[i] == 1 or ti.static(self.density_compression_only)
+                            or self.compress_only[None] == 1) and b <= 0.0:
                         act = 0  # free surface opening up: no tension there
                         b = 0.0
                     elif b < 0.0:
@@ -610,6 +618,44 @@ class DFSPH:
         if self.tension_form == "difference":
             self._release_tension(self.rows.n, dt, True)
         self.stats["density_iterations"] = iters
+        return iters, err
+
+    @ti.func
+    def _moved_density_task(self, i, slot, j, xij, acc: ti.template()):
+        r = (xij + self.step_dt[None] * (self.state.v[i] - self.state.v[j])).norm()
+        if r < self.K.H:
+            acc[0] += self.V0 * self.K.W(r)
+
+    @ti.kernel
+    def moved_compression(self, n: ti.i32, dt: float) -> float:
+        """Largest compression of the melt at x_n + dt v (walls moved with their velocities),
+        summed over this step's lists (no skin: a neighbour that enters the support within
+        the step adds ~W(H) = 0). Each melt particle's rho_src becomes that density less the
+        solve's linear prediction dt D(v), so that the next solve's source is the summed
+        compression itself."""
+        self.step_dt[None] = dt
+        peak = 0.0
+        for slot in range(n):
+            i = self.rows.index[slot]
+            if self.state.phase[i] == FLUID:
+                acc = ti.Vector([self.V0 * self.K.W0])
+                self.grid.for_each_listed(i, self._moved_density_task, acc)
+                div = 0.0
+                self.grid.for_each_neighbour(i, self._vdiv_task, div)
+                self.rho_src[i] = self.rho0 * (acc[0] - dt * div)
+                ti.atomic_max(peak, acc[0] - 1.0)
+        return peak
+
+    def correct_compression(self, dt: float) -> tuple[int, float]:
+        """One more density solve, from the summed density at the new positions
+        (moved_compression), on compressed melt only: it removes what the linear prediction
+        missed, an O(dt^2) error largest where the nozzle squeezes melt onto the plate.
+        The tension release is not repeated (compression only: no tension grows here)."""
+        o = self.opts
+        self.compress_only[None] = 1
+        iters, err = self._solve(dt, True, o.max_density_error, 0.5 * o.compression_check,
+                                 o.min_iterations, o.max_iterations)
+        self.compress_only[None] = 0
         return iters, err
 
     @ti.kernel
