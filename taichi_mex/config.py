@@ -221,6 +221,14 @@ class RunOptions:
             raise UserInputError("EDAC needs a positive sound speed and 0 < cfl <= 1.")
         if not 0 < self.dfsph.cfl <= 2:
             raise UserInputError("DFSPH cfl must lie in (0, 2].")
+        check = self.dfsph.compression_check
+        if check is not None and not (isinstance(check, (int, float)) and 0 < check <= 0.1):
+            raise UserInputError(f"DFSPH compression_check is a fraction in (0, 0.1] (9e-3 = 0.9 %) "
+                                 f"or None (off), got {check!r}.")
+        if not (isinstance(self.dfsph.compression_corrections, int)
+                and 0 <= self.dfsph.compression_corrections <= 20):
+            raise UserInputError(f"DFSPH compression_corrections is a whole number in 0-20, got "
+                                 f"{self.dfsph.compression_corrections!r}.")
         if self.dfsph.divergence_solve not in (True, False, "auto"):
             raise UserInputError(f"DFSPH divergence_solve is True, False or 'auto', got "
                                  f"{self.dfsph.divergence_solve!r}.")

@@ -135,7 +135,9 @@ def test_resolve_builds_options_and_refuses_bad_values(tmp_path):
                             ({"gcode": "paper_bead", "speed_mm_s": 40}, "generated G-code"),
                             ({"gcode": "nope"}, "neither a file"),
                             ({"viscosity": "thick"}, "should be a number"),
-                            ({"until": 1.0, "deposit_for_s": 0.1}, "not both")):
+                            ({"until": 1.0, "deposit_for_s": 0.1}, "not both"),
+                            ({"run.dfsph.compression_check": 0.5}, "compression_check"),
+                            ({"run.dfsph.compression_corrections": -1}, "compression_corrections")):
         with pytest.raises(UserInputError, match=message):
             resolve(params)
 
