@@ -333,7 +333,7 @@ class DFSPH:
                 if ti.static(density):
                     if (self.surface[i] == 1 or ti.static(self.density_compression_only)
                             or self.compress_only[None] == 1) and b <= 0.0:
-                        act = 0  # free surface opening up: no tension there
+                        act = 0  # free surface opening up, or a compression correction: no tension
                         b = 0.0
                     elif b < 0.0:
                         b *= self._tension_fraction(i, dt)  # pull gaps shut over several steps
@@ -661,19 +661,13 @@ class DFSPH:
         o = self.opts
         self.compress_only[None] = 1
         if not self.correction_in_pressure:
-            self._copy(self.kappa, self.kappa_kept, self.rows.n)
+            self.kappa_kept.copy_from(self.kappa)
         iters, err = self._solve(dt, True, o.max_density_error, 0.5 * o.compression_check,
                                  o.min_iterations, o.max_iterations)
         if not self.correction_in_pressure:
-            self._copy(self.kappa_kept, self.kappa, self.rows.n)
+            self.kappa.copy_from(self.kappa_kept)
         self.compress_only[None] = 0
         return iters, err
-
-    @ti.kernel
-    def _copy(self, src: ti.template(), dst: ti.template(), n: ti.i32):
-        for slot in range(n):
-            i = self.rows.index[slot]
-            dst[i] = src[i]
 
     @ti.kernel
     def _count_fluid(self, n: ti.i32):
