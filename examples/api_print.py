@@ -9,7 +9,7 @@ import numpy as np
 
 from taichi_mex import Material, RunOptions, Simulation, bundled
 from taichi_mex.scenes.print import PrintScene
-from taichi_mex.state import FLUID
+from taichi_mex.core.state import FLUID
 
 out = sys.argv[1] if len(sys.argv) > 1 else "api_print_out"
 

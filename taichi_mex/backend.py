@@ -15,7 +15,7 @@ import os
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "false")
 import taichi as ti  # noqa: E402
 
-from .errors import UserInputError  # noqa: E402
+from taichi_mex.errors import UserInputError  # noqa: E402
 
 ARCHES = ("cpu", "gpu")
 PRECISIONS = ("f32", "f64")

@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from taichi_mex import analysis
+from taichi_mex.post import analysis
 from taichi_mex.errors import UserInputError
 
 DX = 0.04e-3          # particle spacing (m)

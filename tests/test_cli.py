@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from taichi_mex import bundled
-from taichi_mex.cli import main
+from taichi_mex.app.cli import main
 
 PLAN_KEYS = {"print_time_s", "extruding_time_s", "extruded_volume_mm3", "n_layers",
              "selected_extruded_volume_mm3"}
@@ -65,8 +65,8 @@ def test_arc_and_inch_files_exit_2_without_traceback(tmp_path, body, fragment):
 
 
 def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
-    from taichi_mex.cli import run_warnings
-    from taichi_mex.config import RunOptions
+    from taichi_mex.app.cli import run_warnings
+    from taichi_mex.options import RunOptions
 
     run = RunOptions(scheme="dfsph")
     clean = {"particles_lost": 0, "viscosity_residual_worst": 9.9e-4}

@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from taichi_mex import peer
-from taichi_mex.config import Material, RunOptions, apply_overrides
+from taichi_mex.app import peer
+from taichi_mex.options import Material, RunOptions, apply_overrides
 from taichi_mex.scenes import dam_break
-from taichi_mex.state import FLUID, PLATE
+from taichi_mex.core.state import FLUID, PLATE
 
 COARSE_DX_M = 0.08
 
@@ -56,7 +56,7 @@ def test_geometry_matches_pysph_when_installed():
 
 def test_short_coarse_run_stays_finite(tmp_path):
     """A few steps at dx = 0.08 through the scene command: nothing lost, nothing NaN."""
-    from taichi_mex.cli import main
+    from taichi_mex.app.cli import main
 
     out = tmp_path / "db"
     code = main(["scene", "dam-break", "--dx", str(COARSE_DX_M), "--until", "0.002",

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from taichi_mex.cli import main
-from taichi_mex.config import Material, RunOptions
+from taichi_mex.app.cli import main
+from taichi_mex.options import Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
 from taichi_mex.scenes.shear import ShearStartScene
-from taichi_mex.simulation import Simulation
+from taichi_mex.sim.simulation import Simulation
 
 WATERLIKE = Material(name="test fluid", density_kg_m3=1000.0, viscosity_pa_s=1.0)
 
@@ -176,9 +176,9 @@ def test_melt_leaves_the_bore_uncompressed(tmp_path):
     Measured 2026-12-01: 0.40 % after 9 corrections, prediction within 5.4e-4 of the next
     step's density; without the check 0.88 %, and 6.5 % with DFSPH.inlet_rows off too."""
     from taichi_mex import bundled
-    from taichi_mex.config import DFSPHOptions
+    from taichi_mex.options import DFSPHOptions
     from taichi_mex.scenes.print import PrintScene
-    from taichi_mex.state import FLUID
+    from taichi_mex.core.state import FLUID
 
     scene = PrintScene(bundled.gcode_path("single_bead"), until_s=0.345)
     worst, moved = [], []

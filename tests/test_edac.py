@@ -5,11 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from taichi_mex.config import EDACOptions, Material, RunOptions
+from taichi_mex.options import EDACOptions, Material, RunOptions
 from taichi_mex.errors import SimulationDiverged
-from taichi_mex.output import read_frames
+from taichi_mex.post.output import read_frames
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
-from taichi_mex.simulation import Simulation
+from taichi_mex.sim.simulation import Simulation
 
 WATER = Material(name="test fluid", density_kg_m3=1000.0, viscosity_pa_s=1.0)
 

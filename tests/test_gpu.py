@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from taichi_mex import backend
-from taichi_mex.cli import main
-from taichi_mex.config import EDACOptions, Material, RunOptions
+from taichi_mex.app.cli import main
+from taichi_mex.options import EDACOptions, Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
-from taichi_mex.simulation import Simulation
+from taichi_mex.sim.simulation import Simulation
 
 HAVE_GPU = backend.gpu_available()
 needs_gpu = pytest.mark.skipif(not HAVE_GPU, reason="no GPU: Taichi found neither CUDA nor Vulkan "

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_mex import backend
-from taichi_mex.state import FLUID, INLET, PLATE, ParticleState
+from taichi_mex.core.state import FLUID, INLET, PLATE, ParticleState
 
 
 def _brute(x, radius):
@@ -14,7 +14,7 @@ def _brute(x, radius):
 
 
 def _build(points, phases, H, lo, hi, skin=0.0, origin=(0.0, 0.0, 0.0)):
-    from taichi_mex.grid import NeighbourGrid
+    from taichi_mex.core.grid import NeighbourGrid
 
     st = ParticleState(len(points) + 8, origin_m=origin)
     ids = st.add("test_id")

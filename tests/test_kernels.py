@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_mex import backend
-from taichi_mex.kernels import Kernel
+from taichi_mex.core.kernels import Kernel
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from taichi_mex.config import Material, RunOptions
+from taichi_mex.options import Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
-from taichi_mex.simulation import Simulation
-from taichi_mex.state import FLUID
+from taichi_mex.sim.simulation import Simulation
+from taichi_mex.core.state import FLUID
 
 
 def test_paired_fraction_counts_close_pairs_and_nothing_on_a_lattice():

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from taichi_mex import bundled
-from taichi_mex.cli import main
-from taichi_mex.config import EDACOptions, Material, RunOptions
+from taichi_mex.app.cli import main
+from taichi_mex.options import EDACOptions, Material, RunOptions
 from taichi_mex.scenes.print import PrintScene
-from taichi_mex.simulation import Simulation
+from taichi_mex.sim.simulation import Simulation
 
 PAPER = dict(scheme="edac", spacing_mm=0.1, edac=EDACOptions(sound_speed_m_s=6.0), progress=False)
 PAPER_MELT = Material(viscosity_pa_s=0.1)

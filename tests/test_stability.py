@@ -1,11 +1,11 @@
 """Stability at the extremes (taichi_mex/stability.py): every fast case either finishes with
 finite values, compression below 5 % and the commanded mass deposited, or is refused before
 it runs with a message that says what to change. `python -m pytest -m slow` adds the rest;
-`python -m taichi_mex.stability` prints the whole table."""
+`python -m taichi_mex.app.stability` prints the whole table."""
 
 import pytest
 
-from taichi_mex.stability import CASES, MAX_COMPRESSION, run_case
+from taichi_mex.app.stability import CASES, MAX_COMPRESSION, run_case
 
 REFUSED = {"4 per D, layer 0.25 D": "Use --resolution", "EDAC at 1000 Pa s": "--scheme dfsph"}
 

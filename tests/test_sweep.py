@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 
 from taichi_mex import bundled
-from taichi_mex.cli import main
+from taichi_mex.app.cli import main
 from taichi_mex.errors import UserInputError
-from taichi_mex.gcode_gen import bead_area_mm2, scale_words, write_pattern, write_scaled
-from taichi_mex.jobs import check_names, key_metrics, resolve
-from taichi_mex.plan import make_plan
-from taichi_mex.sweep import load_study, plot_metric, run_name, write_results
+from taichi_mex.toolpath.generate import bead_area_mm2, scale_words, write_pattern, write_scaled
+from taichi_mex.app.jobs import check_names, key_metrics, resolve
+from taichi_mex.toolpath.plan import make_plan
+from taichi_mex.app.sweep import load_study, plot_metric, run_name, write_results
 
 REPO = Path(__file__).resolve().parent.parent
 TINY = REPO / "examples" / "study_tiny.toml"
@@ -169,7 +169,7 @@ def test_results_table_and_plot_from_records(tmp_path):
 
         table = pq.read_table(paths["parquet"])
         assert table.num_rows == 6 and str(table.schema.field("bead_width_mm").type) == "double"
-    from taichi_mex.sweep import collect_rows
+    from taichi_mex.app.sweep import collect_rows
 
     png = plot_metric(collect_rows(study, runs_dir), "bead_width_mm", "viscosity", study.varied,
                       tmp_path / "plot.png")
@@ -283,7 +283,7 @@ def test_example_studies_are_valid(example, tmp_path, capsys):
 
 
 def test_isolated_job_past_its_time_limit_is_recorded(tmp_path):
-    from taichi_mex.jobs import run_job_isolated
+    from taichi_mex.app.jobs import run_job_isolated
 
     t0 = time.perf_counter()
     record = run_job_isolated({"gcode": "paper_bead", "preset": "paper", "spacing_mm": 0.12,
@@ -295,7 +295,7 @@ def test_isolated_job_past_its_time_limit_is_recorded(tmp_path):
 
 
 def test_runs_keep_their_folders_when_the_study_grows(tmp_path):
-    from taichi_mex.sweep import adopt_renamed
+    from taichi_mex.app.sweep import adopt_renamed
 
     base = '[base]\ngcode = "paper_bead"\nspacing_mm = 0.1\n[grid]\nviscosity = [1, 2]\n'
     study = load_study(write_study(tmp_path, base))

@@ -8,10 +8,10 @@ which is the tensile clumping that paired 28 % of the single bead's melt."""
 import numpy as np
 import pytest
 
-from taichi_mex.config import Material, RunOptions
+from taichi_mex.options import Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
-from taichi_mex.simulation import Simulation
-from taichi_mex.state import FLUID
+from taichi_mex.sim.simulation import Simulation
+from taichi_mex.core.state import FLUID
 
 DT = 1e-3  # with 1e4 Pa s at 1 mm spacing: nu dt / dx^2 = 1e4, a creeping step
 
@@ -89,7 +89,7 @@ def test_the_difference_form_is_refused_outside_creeping_steps():
 
 @pytest.mark.parametrize("bad", ["sometimes", 1.5])
 def test_divergence_solve_option_is_validated(bad):
-    from taichi_mex.config import DFSPHOptions
+    from taichi_mex.options import DFSPHOptions
     from taichi_mex.errors import UserInputError
 
     with pytest.raises(UserInputError, match="divergence_solve"):

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 from taichi_mex import bundled
-from taichi_mex.cli import main
-from taichi_mex.config import Material, RunOptions, ThermalOptions
+from taichi_mex.app.cli import main
+from taichi_mex.options import Material, RunOptions, ThermalOptions
 from taichi_mex.errors import UserInputError
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 from taichi_mex.scenes.thermal_beam import (ALUMINIUM, PAPER_LOSSES, ThermalBeamScene,
                                             analytic_conduction_c, finite_volume_beam_c)
-from taichi_mex.simulation import Simulation
-from taichi_mex.state import PLATE, SOLID
+from taichi_mex.sim.simulation import Simulation
+from taichi_mex.core.state import PLATE, SOLID
 
 AL = Material(**ALUMINIUM)
 ALPHA_AL = 237.0 / (2700.0 * 897.0)

@@ -8,7 +8,7 @@ from conftest import pygcd_example
 
 from taichi_mex import bundled
 from taichi_mex.errors import GCodeError, UserInputError
-from taichi_mex.toolpath import load_printer, load_trajectory, parse_layers, parse_region
+from taichi_mex.toolpath.trajectory import load_printer, load_trajectory, parse_layers, parse_region
 
 A_175 = math.pi * 1.75**2 / 4  # filament cross-section (mm^2) of prusa_mini
 HEAD = "G21\nG90\nM82\nG92 E0\n"

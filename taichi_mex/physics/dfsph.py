@@ -48,9 +48,9 @@ Particle volumes are calibrated so that a rest lattice has rho = rho0 exactly.
 
 import numpy as np
 
-from ..backend import ti
-from ..reduce import BlockSum
-from ..state import FLUID, INLET, NOZZLE, FluidIndex
+from taichi_mex.backend import ti
+from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, FluidIndex
 
 
 def rest_volume(kernel, spacing_m: float) -> float:

@@ -12,9 +12,9 @@ summation density rho_i = m_i sum_j W_ij, walls with hydrostatically extrapolate
 
 import math
 
-from ..backend import ti
-from ..reduce import BlockSum
-from ..state import FLUID, INLET, NOZZLE
+from taichi_mex.backend import ti
+from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
 @ti.data_oriented

@@ -6,8 +6,8 @@ density errors do not show it, but the pair leaves a particle-sized gap beside i
 cross-section reads as a void. This probe counts it, so that a summary can say so.
 """
 
-from ..backend import ti
-from ..state import FLUID, SOLID
+from taichi_mex.backend import ti
+from taichi_mex.core.state import FLUID, SOLID
 
 
 @ti.data_oriented

@@ -5,8 +5,8 @@ remaining melt and drops out of the pressure and viscosity solves, so cooled lay
 the next ones and cost almost nothing but their neighbour lists.
 """
 
-from ..backend import ti
-from ..state import FLUID, SOLID
+from taichi_mex.backend import ti
+from taichi_mex.core.state import FLUID, SOLID
 
 
 @ti.data_oriented

@@ -19,8 +19,8 @@ import math
 
 import numpy as np
 
-from ..backend import ti
-from ..state import FLUID, SOLID
+from taichi_mex.backend import ti
+from taichi_mex.core.state import FLUID, SOLID
 
 
 @ti.data_oriented
@@ -205,7 +205,7 @@ def colour_calibration(kind: str, support_factor: float) -> tuple[float, float]:
     key = (kind, round(float(support_factor), 9))
     if key in _CALIBRATIONS:
         return _CALIBRATIONS[key]
-    from ..kernels import Kernel
+    from taichi_mex.core.kernels import Kernel
 
     K = Kernel(kind, support_factor)
     H = K.H

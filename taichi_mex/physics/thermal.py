@@ -29,9 +29,9 @@ ones: no new extremes. The time step keeps dt D_max at ``SAFETY``.
 
 import numpy as np
 
-from ..backend import real_np_dtype, ti
-from ..errors import UserInputError
-from ..state import FLUID, INLET, NOZZLE, PLATE, SOLID, write_field
+from taichi_mex.backend import real_np_dtype, ti
+from taichi_mex.errors import UserInputError
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, PLATE, SOLID, write_field
 
 STEFAN_BOLTZMANN = 5.670374419e-8  # W / (m^2 K^4)
 KELVIN = 273.15

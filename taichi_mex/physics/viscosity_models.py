@@ -9,8 +9,8 @@ for Cross-WLF (it is computed from the SPH velocity gradient by whoever owns ``s
 ``scale`` multiplies every value (creeping-flow scaling keeps ratios intact).
 """
 
-from ..backend import ti
-from ..state import FLUID
+from taichi_mex.backend import ti
+from taichi_mex.core.state import FLUID
 
 
 @ti.data_oriented

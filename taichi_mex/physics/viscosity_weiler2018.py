@@ -22,9 +22,9 @@ the set viscosity (see ``lattice_laplacian_factor``).
 
 import numpy as np
 
-from ..backend import ti
-from ..reduce import BlockSum
-from ..state import FLUID
+from taichi_mex.backend import ti
+from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.state import FLUID
 
 
 def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> float:

@@ -27,14 +27,14 @@ def register(spec: SceneCLI) -> SceneCLI:
 
 def load_all() -> dict[str, SceneCLI]:
     """Import the scene modules so that they register themselves."""
-    from . import collapse, hydrostatic, shear  # noqa: F401
+    from taichi_mex.scenes import collapse, hydrostatic, shear  # noqa: F401
 
     try:
-        from . import thermal_beam  # noqa: F401
+        from taichi_mex.scenes import thermal_beam  # noqa: F401
     except ImportError:
         pass
     try:
-        from . import dam_break  # noqa: F401
+        from taichi_mex.scenes import dam_break  # noqa: F401
     except ImportError:
         pass
     return SCENES

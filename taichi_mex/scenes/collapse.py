@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from ..state import FLUID, PLATE
-from . import SceneCLI, register
-from .base import ParticleBlock, ScenePlan, lattice_block
+from taichi_mex.core.state import FLUID, PLATE
+from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 HUPPERT_ETA_N = (2**10 / (3**4 * math.pi**3)) ** 0.125
 

@@ -1,5 +1,5 @@
 """PySPH's 3D dam break (``pysph.examples.dam_break_3d``) with the EDAC scheme: the peer
-benchmark's scene (``python -m taichi_mex bench dam-break``, see :mod:`taichi_mex.peer`).
+benchmark's scene (``python -m taichi_mex bench dam-break``, see :mod:`taichi_mex.app.peer`).
 
 The water column of SPHERIC benchmark test 2 (Kleefsman et al., J. Comput. Phys. 206,
 2005; 1.228 x 1.0 x 0.55 m) collapses in a 3.22 x 1.0 x 1.0 m open tank towards a
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..state import FLUID, PLATE
-from . import SceneCLI, register
-from .base import ParticleBlock, ScenePlan
+from taichi_mex.core.state import FLUID, PLATE
+from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.scenes.base import ParticleBlock, ScenePlan
 
 #: lattice coordinates (units of dx) closer than this to a face count as on it
 _TOL = 1e-6

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from ..state import FLUID, PLATE
-from . import SceneCLI, register
-from .base import ScenePlan, box_walls, lattice_block
+from taichi_mex.core.state import FLUID, PLATE
+from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.scenes.base import ScenePlan, box_walls, lattice_block
 
 
 class HydrostaticScene:
@@ -22,7 +22,7 @@ class HydrostaticScene:
         fluid = lattice_block(lo, hi, dx)
         walls = box_walls(lo, hi + np.array([0, 0, 2 * dx]), dx, run.plate_layers, open_top=True)
         pad = (run.plate_layers + 3) * dx
-        from .base import ParticleBlock
+        from taichi_mex.scenes.base import ParticleBlock
 
         return ScenePlan(
             name=self.name,

@@ -8,11 +8,11 @@ at the commanded volume per mm), so ``--layers 2-3`` prints onto a realistic sub
 
 import numpy as np
 
-from ..boundaries import plate_lattice
-from ..errors import UserInputError
-from ..plan import make_plan
-from ..state import PLATE, SOLID
-from .base import InletSpec, ParticleBlock, ScenePlan
+from taichi_mex.sim.boundaries import plate_lattice
+from taichi_mex.errors import UserInputError
+from taichi_mex.toolpath.plan import make_plan
+from taichi_mex.core.state import PLATE, SOLID
+from taichi_mex.scenes.base import InletSpec, ParticleBlock, ScenePlan
 
 
 class PrintScene:
@@ -184,7 +184,7 @@ class PrintScene:
 
     def write_outputs(self, sim, out_dir) -> None:
         """Mesostructure of the last frame: sections normal to the extrusion direction."""
-        from ..analysis import analyse_run
+        from taichi_mex.post.analysis import analyse_run
 
         sim.bead_metrics = self.bead_metrics(sim)
         try:
@@ -197,7 +197,7 @@ class PrintScene:
         count in a window along the bead (exact: every particle is one lattice cell of melt),
         and robust height/width (99th/1st percentiles of the particle centres plus half a
         spacing, so that one stray particle cannot set them)."""
-        from ..state import FLUID, SOLID
+        from taichi_mex.core.state import FLUID, SOLID
 
         x = sim.state.numpy("position", (FLUID, SOLID))
         if self.plan_section is None or len(x) == 0:

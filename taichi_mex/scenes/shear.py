@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from ..state import FLUID, PLATE
-from . import SceneCLI, register
-from .base import ParticleBlock, ScenePlan, lattice_block
+from taichi_mex.core.state import FLUID, PLATE
+from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 
 def erfc_profile(z_m, t_s: float, nu_m2_s: float, speed_m_s: float):

@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
-from ..physics.thermal import STEFAN_BOLTZMANN, diffusion_dt_s
-from ..state import SOLID
-from . import SceneCLI, register
-from .base import ParticleBlock, ScenePlan, lattice_block
+from taichi_mex.physics.thermal import STEFAN_BOLTZMANN, diffusion_dt_s
+from taichi_mex.core.state import SOLID
+from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 #: paper values (Sec. "Validation of the Thermal Model")
 ALUMINIUM = {"name": "aluminium", "density_kg_m3": 2700.0, "specific_heat_j_kgk": 897.0,
@@ -115,7 +115,7 @@ class ThermalBeamScene:
         self._result = None
 
     def plan(self, run, material) -> ScenePlan:
-        from ..kernels import Kernel
+        from taichi_mex.core.kernels import Kernel
 
         dx = run.spacing_m
         lo = np.zeros(3)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .output import UNITS
+from taichi_mex.post.output import UNITS
 
 LABELS = {"density": "density", "pressure": "pressure", "temperature": "temperature",
           "velocity": "speed", "bead_id": "bead", "phase": "phase", "viscosity": "viscosity",

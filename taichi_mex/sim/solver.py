@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from .backend import ti
-from .physics.dfsph import DFSPH
-from .physics.edac import EDAC
-from .physics.viscosity_weiler2018 import ImplicitViscosity
-from .state import FLUID, FluidIndex
+from taichi_mex.backend import ti
+from taichi_mex.physics.dfsph import DFSPH
+from taichi_mex.physics.edac import EDAC
+from taichi_mex.physics.viscosity_weiler2018 import ImplicitViscosity
+from taichi_mex.core.state import FLUID, FluidIndex
 
 
 class EDACSolver:

@@ -13,7 +13,7 @@ import json
 import time
 from pathlib import Path
 
-from .errors import UserInputError
+from taichi_mex.errors import UserInputError
 
 #: each ladder: (label, parameters for jobs.run_job_isolated); the first entry of a study is
 #: its reference when the scene has no analytic answer
@@ -90,7 +90,7 @@ COLUMNS = ["scene", "label", "scheme", "spacing_mm", "precision", "viscosity_sca
 
 def run_study(scene: str, out_dir: Path, quick: bool = False, timeout_s: float = 3600.0,
               only: list[str] | None = None, arch: str = "cpu") -> list[dict]:
-    from .jobs import run_job_isolated
+    from taichi_mex.app.jobs import run_job_isolated
 
     if scene not in LADDERS:
         raise UserInputError(f"No study for '{scene}'; choose {', '.join(LADDERS)}.")
@@ -197,7 +197,7 @@ def _read(path: Path):
 
 
 def main(argv: list[str]) -> int:
-    from .cli import _Parser
+    from taichi_mex.app.cli import _Parser
 
     p = _Parser(prog="python -m taichi_mex study",
                 description="Run a ladder of settings on a reference scene and write trade.csv")

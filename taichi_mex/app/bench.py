@@ -16,7 +16,7 @@ def pygcd_example(name: str) -> Path:
 def bench_toolpath(gcode: Path | None = None, printer: str = "prusa_mini",
                    queries: int = 1_000_000, reference_calls: int = 20) -> dict:
     """Queries per second of the vectorised sampler vs pyGCodeDecode's ``get_values``."""
-    from .toolpath import load_trajectory
+    from taichi_mex.toolpath.trajectory import load_trajectory
 
     gcode = Path(gcode) if gcode else pygcd_example("benchy.gcode")
     t0 = time.perf_counter()
@@ -70,7 +70,7 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
     steps0 = sim.steps
     import time as _time
 
-    from .state import FLUID
+    from taichi_mex.core.state import FLUID
 
     wall0 = _time.perf_counter()
     n_sum = 0
@@ -97,9 +97,9 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
 
 def edac_block(target_particles: int = 100_000, arch: str = "cpu"):
     """A water-like column in a tank (EDAC, Wendland, h = 1.3 dx) of about N particles."""
-    from .config import EDACOptions, Material, RunOptions
-    from .scenes.hydrostatic import HydrostaticScene
-    from .simulation import Simulation
+    from taichi_mex.options import EDACOptions, Material, RunOptions
+    from taichi_mex.scenes.hydrostatic import HydrostaticScene
+    from taichi_mex.sim.simulation import Simulation
 
     # fluid 1 x 1 x 2 aspect; walls add ~1/3
     n_fluid = target_particles / 1.5

@@ -26,7 +26,7 @@ UNITS = {
 
 class FrameWriter:
     def __init__(self, out_dir: Path, config: dict, scene: str, fields: list[str]):
-        from . import __version__
+        from taichi_mex import __version__
 
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)

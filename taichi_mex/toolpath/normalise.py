@@ -20,7 +20,7 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 
-from .errors import GCodeError
+from taichi_mex.errors import GCodeError
 
 _AXES = ("X", "Y", "Z")
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)"

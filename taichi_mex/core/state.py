@@ -12,7 +12,7 @@ Positions are stored relative to a local origin (``origin_m``) so that f32 keeps
 
 import numpy as np
 
-from .backend import real_np_dtype, ti
+from taichi_mex.backend import real_np_dtype, ti
 
 # phase codes: everything >= SOLID acts as a boundary for the fluid
 FLUID = 0

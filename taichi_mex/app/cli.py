@@ -9,8 +9,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from . import bundled
-from .errors import SimulationDiverged, UserInputError
+from taichi_mex import bundled
+from taichi_mex.errors import SimulationDiverged, UserInputError
 
 SUBCOMMANDS = ("scene", "study", "bench", "sweep", "analyse")
 
@@ -26,7 +26,7 @@ def _positive_float(text: str) -> float:
 
 
 def _resolution(text: str) -> float:
-    from .config import RESOLUTION_PRESETS
+    from taichi_mex.options import RESOLUTION_PRESETS
 
     if text in RESOLUTION_PRESETS:
         return float(RESOLUTION_PRESETS[text]["run"]["spacing_mm"])
@@ -67,8 +67,8 @@ def print_parser() -> argparse.ArgumentParser:
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """Options shared by the print command and the scenes."""
-    from .backend import ARCHES, PRECISIONS
-    from .config import PRESETS, SCHEMES
+    from taichi_mex.backend import ARCHES, PRECISIONS
+    from taichi_mex.options import PRESETS, SCHEMES
 
     p.add_argument("--resolution", "--spacing-mm", dest="spacing_mm", type=_resolution,
                    default=None, help="particle spacing in mm, or draft / standard / fine "
@@ -109,7 +109,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
 def build_options(args, scheme_default: str = "dfsph"):
     """RunOptions and Material from parsed arguments and an optional preset."""
-    from .config import PRESETS, Material, RunOptions, apply_overrides
+    from taichi_mex.options import PRESETS, Material, RunOptions, apply_overrides
 
     run = RunOptions(scheme=scheme_default)
     material = Material()
@@ -204,8 +204,8 @@ def run_warnings(summary: dict, run) -> list[str]:
 
 
 def run_print(argv: list[str]) -> int:
-    from .plan import make_plan
-    from .toolpath import parse_layers, parse_region
+    from taichi_mex.toolpath.plan import make_plan
+    from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 
     args = print_parser().parse_args(argv)
     run, material, preset = build_options(args)
@@ -219,8 +219,8 @@ def run_print(argv: list[str]) -> int:
     print(f"plan written to {path}")
     if args.dry_run:
         return 0
-    from .scenes.print import PrintScene
-    from .simulation import Simulation
+    from taichi_mex.scenes.print import PrintScene
+    from taichi_mex.sim.simulation import Simulation
 
     scene = PrintScene(gcode, args.printer, layers=layers, region_mm=region, until_s=args.until,
                        settle_s=args.settle, **preset_scene_options(preset))
@@ -240,7 +240,7 @@ def preset_scene_options(preset: dict) -> dict:
 
 def default_print_scene(args=None):
     """The bundled default print and its options (what `python -m taichi_mex` runs)."""
-    from .scenes.print import PrintScene
+    from taichi_mex.scenes.print import PrintScene
 
     args = args or print_parser().parse_args([])
     run, material, preset = build_options(args)
@@ -249,9 +249,9 @@ def default_print_scene(args=None):
 
 
 def run_scene(argv: list[str]) -> int:
-    from .config import apply_overrides
-    from .scenes import load_all
-    from .simulation import Simulation
+    from taichi_mex.options import apply_overrides
+    from taichi_mex.scenes import load_all
+    from taichi_mex.sim.simulation import Simulation
 
     scenes = load_all()
     if not argv or argv[0] in ("-h", "--help"):
@@ -283,10 +283,10 @@ def run_scene(argv: list[str]) -> int:
 def run_bench(argv: list[str]) -> int:
     import json
 
-    from . import bench
+    from taichi_mex.app import bench
 
     if argv and argv[0] == "dam-break":  # not in `bench all`: PySPH takes minutes
-        from .peer import main as peer_main
+        from taichi_mex.app.peer import main as peer_main
 
         return peer_main(argv[1:], parser_class=_Parser)
 
@@ -308,7 +308,7 @@ def run_bench(argv: list[str]) -> int:
         rows.append(result)
     if args.which in ("all", "print"):
         scene, run, material = default_print_scene(print_parser().parse_args(["--arch", args.arch]))
-        from .simulation import Simulation
+        from taichi_mex.sim.simulation import Simulation
 
         sim = Simulation(scene, run, material)
         span = sim.plan.t_end_s - sim.plan.t_start_s
@@ -334,15 +334,15 @@ def main(argv: list[str] | None = None) -> int:
         if argv and argv[0] == "scene":
             return run_scene(argv[1:])
         if argv and argv[0] in ("analyse", "analyze"):
-            from .analysis import main as analyse_main
+            from taichi_mex.post.analysis import main as analyse_main
 
             return analyse_main(argv[1:])
         if argv and argv[0] == "study":
-            from .study import main as study_main
+            from taichi_mex.app.study import main as study_main
 
             return study_main(argv[1:])
         if argv and argv[0] == "sweep":
-            from .sweep import main as sweep_main
+            from taichi_mex.app.sweep import main as sweep_main
 
             return sweep_main(argv[1:])
         return run_print(argv)

@@ -60,10 +60,10 @@ def pysph_dt(dx_m: float = DX_M) -> float:
 def bench_ours(steps: int = 100, dx_m: float = DX_M, threads: int | None = None,
                precision: str = "f32", arch: str = "cpu", warm_steps: int = 3) -> dict:
     """Our dam break: ``warm_steps`` untimed steps (kernel compilation), then ``steps`` timed."""
-    from .backend import ti
-    from .config import Material, RunOptions, apply_overrides
-    from .scenes import dam_break
-    from .simulation import Simulation
+    from taichi_mex.backend import ti
+    from taichi_mex.options import Material, RunOptions, apply_overrides
+    from taichi_mex.scenes import dam_break
+    from taichi_mex.sim.simulation import Simulation
 
     run = apply_overrides(RunOptions(progress=False, snapshots=False, cpu_threads=threads,
                                      precision=precision, arch=arch),
@@ -271,7 +271,7 @@ def parser(prog: str = "python -m taichi_mex bench dam-break",
 
 
 def main(argv: list[str] | None = None, parser_class=argparse.ArgumentParser) -> int:
-    from .errors import UserInputError
+    from taichi_mex.errors import UserInputError
 
     args = parser(parser_class=parser_class).parse_args(argv)
     if args.steps < 1 or not args.dx > 0:
@@ -288,5 +288,5 @@ if __name__ == "__main__":
     if len(sys.argv) == 3 and sys.argv[1] == "--pysph-worker":
         _pysph_worker(json.loads(sys.argv[2]))
     else:
-        print("run: python -m taichi_mex bench dam-break (or taichi_mex.peer.main)", file=sys.stderr)
+        print("run: python -m taichi_mex bench dam-break (or taichi_mex.app.peer.main)", file=sys.stderr)
         sys.exit(2)

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import backend
-from .config import Material, RunOptions, to_dict
-from .errors import SimulationDiverged, UserInputError
-from .state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
+from taichi_mex import backend
+from taichi_mex.options import Material, RunOptions, to_dict
+from taichi_mex.errors import SimulationDiverged, UserInputError
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
 
 #: bytes per particle besides the registered fields: neighbour lists, sort buffers
 _TEMP_FACTOR = 2.0
@@ -141,7 +141,7 @@ class Simulation:
         n_cells = int(np.prod(np.ceil(2 * ext / H)))  # cells of half the support radius
         fp = 8 if run.precision == "f64" else 4
         # ~40 scalar fields across core, scheme and sort buffers, plus neighbour lists
-        from .solver import SOLVERS
+        from taichi_mex.sim.solver import SOLVERS
 
         skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0)
         max_nbr = self._max_neighbours(factor * (1.0 + skin))
@@ -222,11 +222,11 @@ class Simulation:
     def build(self) -> None:
         if self._built:
             return
-        from .grid import NeighbourGrid
-        from .kernels import Kernel
-        from .physics.viscosity_models import MeltViscosity
-        from .solver import SOLVERS
-        from .state import ParticleState
+        from taichi_mex.core.grid import NeighbourGrid
+        from taichi_mex.core.kernels import Kernel
+        from taichi_mex.physics.viscosity_models import MeltViscosity
+        from taichi_mex.sim.solver import SOLVERS
+        from taichi_mex.core.state import ParticleState
 
         run = self.run_opts
         self.arch_used = backend.init(run.arch, run.precision, run.cpu_threads)
@@ -236,12 +236,12 @@ class Simulation:
         self.state = ParticleState(self.estimate["capacity"], origin_m=self.plan.origin_m)
         self.thermal = None
         if "thermal" in self.plan.needs or run.thermal.enabled:
-            from .physics.thermal import Thermal
+            from taichi_mex.physics.thermal import Thermal
 
             self.thermal = Thermal(self)
         self.solidification = None
         if self.thermal is not None and run.scheme != "static":
-            from .physics.solidification import Solidification
+            from taichi_mex.physics.solidification import Solidification
 
             self.solidification = Solidification(self.state, self.thermal.T,
                                                  self.material.no_flow_temperature_c)
@@ -253,7 +253,7 @@ class Simulation:
                                   self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
         self.state.on_append.append(lambda _sl, _ph: setattr(self.grid, "stale", True))
         self.viscosity.attach(self.grid, self.kernel)
-        from .physics.surface import SurfaceDetector
+        from taichi_mex.physics.surface import SurfaceDetector
 
         self.surface = SurfaceDetector(self)
         self.solver = SOLVERS[run.scheme](self)
@@ -262,7 +262,7 @@ class Simulation:
         self.mass = getattr(self.solver, "particle_mass", self.material.density_kg_m3 * dx**3)
         self.inlet = None
         if self.plan.inlet is not None:
-            from .inlet import NozzleInlet
+            from taichi_mex.sim.inlet import NozzleInlet
 
             spec = self.plan.inlet
             self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H, self.mass,
@@ -456,7 +456,7 @@ class Simulation:
     def _open_writer(self):
         if self.out_dir is None:
             return None
-        from .output import FrameWriter
+        from taichi_mex.post.output import FrameWriter
 
         writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields())
         writer.write_plate(self.state.numpy("position", PLATE))
@@ -489,7 +489,7 @@ class Simulation:
             print(f"warning: snapshots '{tag}' skipped: {exc}")
 
     def snapshots(self, tag: str, field: str | None = None) -> list:
-        from .render import snapshot_set
+        from taichi_mex.post.render import snapshot_set
 
         data = self.frame_data()
         field = field or self.run_opts.snapshot_field
@@ -509,7 +509,7 @@ class Simulation:
         * compression_error_mean/max: max(rho/rho0 - 1, 0) over all melt, the measure DFSPH
           controls and the literature reports.
         """
-        from .physics.surface import interior_mask
+        from taichi_mex.physics.surface import interior_mask
 
         rho = self.state.numpy("density", FLUID).astype(np.float64)
         if len(rho) == 0:
@@ -531,7 +531,7 @@ class Simulation:
         """Fraction of fluid melt with a melt neighbour closer than ``closer_than_dx`` spacings:
         SPH's tensile pairing, which summation density cannot see (physics/pairing.py).
         A lattice gives 0; the single bead run without tension in the melt 0.5-0.9 %."""
-        from .physics.pairing import PairingProbe
+        from taichi_mex.physics.pairing import PairingProbe
 
         if self._pairing is None:
             self._pairing = PairingProbe(self.state, self.grid)

@@ -27,7 +27,7 @@ the runs already done and skips them. The sweep writes ``DIR/results.csv`` (and
 ``results.parquet`` when pyarrow is importable), ``DIR/failures.json`` and the plots.
 
 Without ``--scheduler`` a :class:`distributed.LocalCluster` of one single-threaded worker
-process per concurrent run is started; each run is a fresh ``python -m taichi_mex.jobs``
+process per concurrent run is started; each run is a fresh ``python -m taichi_mex.app.jobs``
 process (Taichi keeps global state) with the host's cores divided among the runs. With
 ``--scheduler ADDRESS`` the same runs go to an existing Dask cluster, whose workers must
 see ``DIR`` and the study's files at the same paths (a shared file system).
@@ -51,8 +51,8 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import jobs
-from .errors import UserInputError
+from taichi_mex.app import jobs
+from taichi_mex.errors import UserInputError
 
 SECTIONS = ("study", "base", "grid", "runs", "sweep", "plot")
 SWEEP_KEYS = ("workers", "threads_per_run", "timeout_s")
@@ -403,7 +403,7 @@ def plot_metric(rows: list[dict], metric: str, param: str, varied: list[str], pa
 # --------------------------------------------------------------------------- running
 def default_workers(n_runs: int) -> int:
     """One worker per core, fewer when memory is short (about 1.5 GiB per Taichi process)."""
-    from .simulation import available_memory_bytes
+    from taichi_mex.sim.simulation import available_memory_bytes
 
     by_memory = int(available_memory_bytes() / (1.5 * 2**30))
     return max(1, min(jobs.available_cores(), max(n_runs, 1), max(by_memory, 1)))
@@ -587,7 +587,7 @@ def _close(client, cluster) -> None:
 
 # --------------------------------------------------------------------------- command line
 def sweep_parser() -> argparse.ArgumentParser:
-    from .cli import _Parser
+    from taichi_mex.app.cli import _Parser
 
     p = _Parser(prog="python -m taichi_mex sweep",
                 description="Run a parameter study (a TOML study file) on Dask: a local cluster "

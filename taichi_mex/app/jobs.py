@@ -1,21 +1,21 @@
 """One run of a parameter study, described by a flat parameter dict; no Dask needed.
 
-    from taichi_mex.jobs import run_print_job
+    from taichi_mex.app.jobs import run_print_job
     record = run_print_job({"gcode": "paper_bead", "preset": "paper", "spacing_mm": 0.12,
                             "deposit_for_s": 0.005, "viscosity": 0.2}, "runs/a")
     record["status"], record["metrics"]["bead_width_mm"]
 
 :data:`PARAMETERS` lists the names a study may use (``python -m taichi_mex sweep
---list-params`` prints them); options of :class:`~taichi_mex.config.RunOptions` and
-:class:`~taichi_mex.config.Material` not named there are reached as ``run.FIELD``,
+--list-params`` prints them); options of :class:`~taichi_mex.options.RunOptions` and
+:class:`~taichi_mex.options.Material` not named there are reached as ``run.FIELD``,
 ``run.edac.FIELD``, ``material.FIELD`` and so on. A run folder gets ``params.json``,
 the simulation's own outputs (``particles.h5``, ``snapshots/``, ``summary.json``),
-``mesostructure.json`` when :mod:`taichi_mex.analysis` is available, and last
+``mesostructure.json`` when :mod:`taichi_mex.post.analysis` is available, and last
 ``job.json``: status, error message and the key metrics. ``job.json`` with status
 ``done`` is what marks a run finished.
 
 Taichi keeps global state per process, so a study runs each job in a fresh Python process
-(:func:`run_job_isolated`, which calls ``python -m taichi_mex.jobs RUN_DIR``); a crash or a
+(:func:`run_job_isolated`, which calls ``python -m taichi_mex.app.jobs RUN_DIR``); a crash or a
 runaway run then costs that job, never the worker that launched it.
 """
 
@@ -37,8 +37,8 @@ import traceback
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from . import bundled
-from .errors import SimulationDiverged, UserInputError
+from taichi_mex import bundled
+from taichi_mex.errors import SimulationDiverged, UserInputError
 
 # --------------------------------------------------------------------------- parameters
 _NUM = (int, float)
@@ -75,7 +75,7 @@ PARAMETERS: dict[str, Param] = {
                               "printer's limits still apply)", _NUM, "gcode"),
     "flow_factor": Param("multiply every extrusion E of the G-code (over/under-extrusion)", _NUM,
                          "gcode"),
-    # generated G-code (taichi_mex.gcode_gen)
+    # generated G-code (taichi_mex.toolpath.generate)
     "pattern": Param("generate the G-code: 'bead' (one bead) or 'block' (block_layers x "
                      "block_beads parallel beads); default 'bead' when a parameter below is set",
                      (str,), "generate"),
@@ -99,7 +99,7 @@ PARAMETERS: dict[str, Param] = {
                          (int,), "run"),
     "output_every": Param("write an HDF5 frame every this many simulated seconds", _NUM, "run"),
     "snapshots": Param("write PNG snapshots (default true)", (bool,), "run"),
-    "analysis": Param("take bead metrics from mesostructure.json, running taichi_mex.analysis "
+    "analysis": Param("take bead metrics from mesostructure.json, running taichi_mex.post.analysis "
                       "when the scene did not (default true)", (bool,), "run"),
     # melt
     "viscosity": Param("melt viscosity (Pa s): Newtonian unless viscosity_model says otherwise, "
@@ -133,7 +133,7 @@ _GENERATE_DEFAULTS = {"pattern": "bead", "layer_height_mm": 0.2, "line_width_mm"
 
 def parameters() -> dict[str, Param]:
     """The named parameters this version understands (optional ones only when present)."""
-    from .config import RunOptions
+    from taichi_mex.options import RunOptions
 
     out = dict(PARAMETERS)
     names = {f.name for f in fields(RunOptions)}
@@ -163,7 +163,7 @@ def _dataclass_fields(obj) -> dict:
 
 def _check_dotted(name: str, scene_options: set | None) -> str | None:
     """None when a dotted name reaches an existing option, else the reason."""
-    from .config import Material, RunOptions
+    from taichi_mex.options import Material, RunOptions
 
     prefix, _, rest = name.partition(".")
     if not rest:
@@ -297,8 +297,8 @@ def _nested(dotted: dict) -> dict:
 def resolve(params: dict, base_dir=None) -> Resolved:
     """Options, scene choice and G-code source for one run; refuses unknown names and bad
     values with UserInputError (nothing is written, nothing is planned)."""
-    from . import config
-    from .config import PRESETS, Material, RunOptions, apply_overrides
+    from taichi_mex import options as config
+    from taichi_mex.options import PRESETS, Material, RunOptions, apply_overrides
 
     check_names(params)
     _check_types(params)
@@ -379,7 +379,7 @@ def resolve(params: dict, base_dir=None) -> Resolved:
         raise UserInputError(f"{', '.join(generate)} describe a generated G-code; drop them or "
                              f"drop gcode = {params['gcode']!r}.")
     if generate:
-        from .gcode_gen import check_pattern
+        from taichi_mex.toolpath.generate import check_pattern
 
         res.generate = {**_GENERATE_DEFAULTS, **generate}
         check_pattern(**_pattern_kwargs(res.generate, _printer_path(params.get("printer", "prusa_mini"),
@@ -390,7 +390,7 @@ def resolve(params: dict, base_dir=None) -> Resolved:
     res.feed_rate_factor = float(params.get("feed_rate_factor", 1.0))
     res.flow_factor = float(params.get("flow_factor", 1.0))
 
-    from .toolpath import parse_layers, parse_region
+    from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 
     kw: dict = {"printer": _printer_path(params.get("printer", "prusa_mini"), base_dir),
                 "layers": parse_layers(params["layers"]) if "layers" in params else None,
@@ -425,7 +425,7 @@ def _printer_path(spec: str, base_dir) -> str:
 
 
 def _apply_resolution(run, value, table):
-    from .config import apply_overrides
+    from taichi_mex.options import apply_overrides
 
     if not isinstance(value, str):
         return apply_overrides(run, {"spacing_mm": float(value)})
@@ -465,7 +465,7 @@ def _pattern_kwargs(gen: dict, printer: str) -> dict:
 
 
 def _scene_spec(name: str):
-    from .scenes import load_all
+    from taichi_mex.scenes import load_all
 
     scenes = load_all()
     if name == "print":
@@ -476,7 +476,7 @@ def _scene_spec(name: str):
 
 
 def _scene_parser(spec, with_run_options: bool = True):
-    from .cli import _Parser, add_run_options
+    from taichi_mex.app.cli import _Parser, add_run_options
 
     p = _Parser(prog=f"scene {spec.name}", add_help=False)
     if with_run_options:
@@ -510,7 +510,7 @@ class Job:
 
 def build_job(res: Resolved, out_dir) -> Job:
     """Write the run's G-code (generated or rewritten) into ``out_dir`` and build the scene."""
-    from .config import apply_overrides
+    from taichi_mex.options import apply_overrides
 
     out_dir = Path(out_dir)
     if res.scene != "print":
@@ -530,8 +530,8 @@ def build_job(res: Resolved, out_dir) -> Job:
         material = apply_overrides(res.material, material_overrides)
         return Job(scene, run, material, notes={"scene": res.scene})
 
-    from .gcode_gen import write_pattern, write_scaled
-    from .scenes.print import PrintScene
+    from taichi_mex.toolpath.generate import write_pattern, write_scaled
+    from taichi_mex.scenes.print import PrintScene
 
     notes: dict = {}
     if res.generate is not None:
@@ -546,7 +546,7 @@ def build_job(res: Resolved, out_dir) -> Job:
                              res.flow_factor)
     kw = dict(res.scene_kwargs)
     if res.deposit_for_s is not None:
-        from .plan import make_plan
+        from taichi_mex.toolpath.plan import make_plan
 
         plan = make_plan(gcode, kw["printer"], layers=kw["layers"], region_mm=kw["region_mm"],
                          plan_whole_file=False)
@@ -732,7 +732,7 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
         res = resolve(params, base_dir)
         job = build_job(res, out_dir)
         record["job_notes"] = job.notes
-        from .simulation import Simulation
+        from taichi_mex.sim.simulation import Simulation
 
         sim = Simulation(job.scene, job.run, job.material, out_dir=out_dir)
         notes = dict(sim.plan.notes)
@@ -778,7 +778,7 @@ def _read_json(path: Path):
 
 def _analyse(out_dir: Path, record: dict, scene=None):
     """The run's mesostructure: the ``mesostructure.json`` the scene wrote itself (print
-    scenes analyse their last frame), else :func:`taichi_mex.analysis.analyse_run` when that
+    scenes analyse their last frame), else :func:`taichi_mex.post.analysis.analyse_run` when that
     module is there. A failing analysis is noted in the record; the run stays done."""
     written = _read_json(out_dir / "mesostructure.json")
     if written is not None:
@@ -787,9 +787,9 @@ def _analyse(out_dir: Path, record: dict, scene=None):
         record["analysis"] = "the run wrote no mesostructure.json (its log says why)"
         return None
     try:
-        from .analysis import analyse_run
+        from taichi_mex.post.analysis import analyse_run
     except ImportError:
-        record["analysis"] = "unavailable (no taichi_mex.analysis)"
+        record["analysis"] = "unavailable (no taichi_mex.post.analysis)"
         return None
     try:
         return analyse_run(out_dir)
@@ -801,7 +801,7 @@ def _analyse(out_dir: Path, record: dict, scene=None):
 # --------------------------------------------------------------------------- isolation
 def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float | None = None,
                      slots_by_host: dict | None = None) -> dict:
-    """Run one job in a fresh ``python -m taichi_mex.jobs`` process and return its record.
+    """Run one job in a fresh ``python -m taichi_mex.app.jobs`` process and return its record.
 
     Inside a Dask worker, ``cpu_threads`` defaults to this host's cores divided by the task
     slots the scheduler counts on it (``slots_by_host``), so the workers of one machine
@@ -820,7 +820,7 @@ def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float |
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # numpy's share
         env.setdefault(name, str(params["cpu_threads"]))
     with open(out_dir / "log.txt", "w") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "taichi_mex.jobs", str(out_dir)],
+        proc = subprocess.Popen([sys.executable, "-m", "taichi_mex.app.jobs", str(out_dir)],
                                 stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 env=env)
         timed_out = False
@@ -902,10 +902,10 @@ def _watch_parent(parent_pid: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m taichi_mex.jobs RUN_DIR``: run the job described by RUN_DIR/params.json."""
+    """``python -m taichi_mex.app.jobs RUN_DIR``: run the job described by RUN_DIR/params.json."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if len(argv) != 1:
-        print("usage: python -m taichi_mex.jobs RUN_DIR (with RUN_DIR/params.json)", file=sys.stderr)
+        print("usage: python -m taichi_mex.app.jobs RUN_DIR (with RUN_DIR/params.json)", file=sys.stderr)
         return 2
     run_dir = Path(argv[0])
     # a Dask worker may have started us with Ctrl-C ignored; the simulation handles it itself

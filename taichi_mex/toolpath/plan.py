@@ -6,7 +6,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from .toolpath import Selection, Trajectory, load_trajectory
+from taichi_mex.toolpath.trajectory import Selection, Trajectory, load_trajectory
 
 
 @dataclass

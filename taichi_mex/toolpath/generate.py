@@ -19,7 +19,7 @@ import math
 import re
 from pathlib import Path
 
-from .errors import UserInputError
+from taichi_mex.errors import UserInputError
 
 PATTERNS = ("bead", "block")
 
@@ -71,7 +71,7 @@ def check_pattern(*, pattern: str = "bead", layer_height_mm: float = 0.2,
     for name, value in (("beads", beads), ("layers", layers)):
         if isinstance(value, bool) or not (isinstance(value, int) and value >= 1):
             raise UserInputError(f"{name} must be a whole number >= 1, got {value!r}.")
-    from .toolpath import load_printer
+    from taichi_mex.toolpath.trajectory import load_printer
 
     load_printer(printer)
 
@@ -83,7 +83,7 @@ def write_pattern(path, *, pattern: str = "bead", layer_height_mm: float = 0.2,
                   travel_speed_mm_s: float = 100.0, lift_mm: float = 0.4) -> Path:
     """Write a bead (``pattern='bead'``: one bead, one layer) or a block (``'block'``:
     ``layers`` x ``beads`` parallel beads along +X) and return the path."""
-    from .toolpath import load_printer
+    from taichi_mex.toolpath.trajectory import load_printer
 
     check_pattern(pattern=pattern, layer_height_mm=layer_height_mm, line_width_mm=line_width_mm,
                   speed_mm_s=speed_mm_s, bead_length_mm=bead_length_mm, beads=beads,
@@ -99,7 +99,7 @@ def write_pattern(path, *, pattern: str = "bead", layer_height_mm: float = 0.2,
     print_f = _fmt(60.0 * speed_mm_s, 3)
     what = "one bead" if pattern == "bead" else f"{layers} layer(s) x {beads} parallel bead(s)"
     lines = [
-        f"; {Path(path).name} - written by taichi_mex.gcode_gen: {what}.",
+        f"; {Path(path).name} - written by taichi_mex.toolpath.generate: {what}.",
         f"; Beads of {_fmt(bead_length_mm)} mm along +X at {_fmt(speed_mm_s, 3)} mm/s, "
         f"{_fmt(layer_height_mm)} mm layer height, {_fmt(line_width_mm)} mm extrusion width",
         f"; (slicer rounded-rectangle area {_fmt(area)} mm^2 -> {_fmt(e_per_mm)} "

@@ -4,7 +4,7 @@ Each case changes one or two settings from the baseline (DFSPH, unscaled 1000 Pa
 60 mm/s, 0.2 mm layer under a 0.4 mm nozzle, 8 particles per nozzle diameter, f32, the
 stable time step) towards an extreme, prints a short bead, and must either finish with
 finite values, bounded compression and the commanded mass deposited, or be refused before
-it starts with a message that says what to change. ``python -m taichi_mex.stability`` runs
+it starts with a message that says what to change. ``python -m taichi_mex.app.stability`` runs
 the whole matrix and prints the table that README.md shows; the tests run the fast cases.
 """
 
@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import SimulationDiverged, UserInputError
+from taichi_mex.errors import SimulationDiverged, UserInputError
 
 BASE = {"viscosity_pa_s": 1000.0, "speed_mm_s": 60.0, "layer_height_mm": 0.2,
         "spacing_mm": 0.05, "precision": "f32", "dt_factor": 1.0, "scheme": "dfsph"}
@@ -55,10 +55,10 @@ CASES = [
 
 def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5, arch: str = "cpu") -> dict:
     """Run one case in this process; returns a row for the table (never raises)."""
-    from .config import EDACOptions, Material, RunOptions
-    from .gcode_gen import write_pattern
-    from .scenes.print import PrintScene
-    from .simulation import Simulation
+    from taichi_mex.options import EDACOptions, Material, RunOptions
+    from taichi_mex.toolpath.generate import write_pattern
+    from taichi_mex.scenes.print import PrintScene
+    from taichi_mex.sim.simulation import Simulation
 
     p = case.params
     out_dir = Path(out_dir)
@@ -110,7 +110,7 @@ def table(rows: list[dict]) -> str:
 def main(argv=None) -> int:
     import argparse
 
-    p = argparse.ArgumentParser(prog="python -m taichi_mex.stability")
+    p = argparse.ArgumentParser(prog="python -m taichi_mex.app.stability")
     p.add_argument("--out", type=Path, default=Path("stability_out"))
     p.add_argument("--fast", action="store_true", help="only the cases the test suite runs")
     p.add_argument("--arch", choices=["cpu", "gpu"], default="cpu", help="cpu (default) or gpu")

@@ -1,6 +1,6 @@
 """Mesostructure of printed beads from saved frames: cross-sections, bead sizes, necks, voids.
 
-Pure numpy + matplotlib (Agg); reads ``particles.h5`` (see :mod:`taichi_mex.output`) and
+Pure numpy + matplotlib (Agg); reads ``particles.h5`` (see :mod:`taichi_mex.post.output`) and
 needs no Taichi, so it runs on any frame of any run, also one that was interrupted.
 
 How a section is measured (:func:`cross_section`)
@@ -69,7 +69,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import UserInputError
+from taichi_mex.errors import UserInputError
 
 #: label image values besides bead ids (which are >= 0, or -1 for solid substrate beads)
 PLATE = -2
@@ -711,7 +711,7 @@ def _mm(value, unit="mm") -> str:
 # --------------------------------------------------------------------------- command line
 def main(argv: list[str]) -> int:
     """``python -m taichi_mex analyse DIR [--frame N] [--at X_MM ...]``."""
-    from .cli import _Parser
+    from taichi_mex.app.cli import _Parser
 
     p = _Parser(prog="python -m taichi_mex analyse",
                 description="Cross-sections of a saved frame: bead width, height, area and "

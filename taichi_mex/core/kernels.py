@@ -10,7 +10,7 @@ no division by r (F is finite at r = 0). ``h`` in the PySPH sense is H/2 for bot
 
 import math
 
-from .backend import ti
+from taichi_mex.backend import ti
 
 KERNELS = ("cubic", "wendland_c2")
 

@@ -14,9 +14,9 @@ import bisect
 
 import numpy as np
 
-from .backend import real_np_dtype, ti
-from .boundaries import annulus_lattice, disc_lattice
-from .state import FLUID, INLET, NOZZLE
+from taichi_mex.backend import real_np_dtype, ti
+from taichi_mex.sim.boundaries import annulus_lattice, disc_lattice
+from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
 @ti.data_oriented

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .errors import GCodeError, UserInputError
-from .gcode_normalise import NormalisedGCode, normalise_gcode
+from taichi_mex.errors import GCodeError, UserInputError
+from taichi_mex.toolpath.normalise import NormalisedGCode, normalise_gcode
 
 _EPS_MM = 1e-9
 

@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from .backend import current, ti
-from .state import INLET, NOZZLE, SOLID
+from taichi_mex.backend import current, ti
+from taichi_mex.core.state import INLET, NOZZLE, SOLID
 
 
 @ti.data_oriented

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from .errors import UserInputError
+from taichi_mex.errors import UserInputError
 
 SCHEMES = ("edac", "dfsph", "static")
 VISCOSITY_MODELS = ("newtonian", "arrhenius", "cross_wlf")

@@ -6,7 +6,7 @@ result) depend on thread timing; block sums give the same bits on every CPU run.
 
 import math
 
-from .backend import ti
+from taichi_mex.backend import ti
 
 
 @ti.data_oriented

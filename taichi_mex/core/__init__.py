@@ -1,0 +1,1 @@
+"""Particle state, neighbour grid, kernels, reductions."""

@@ -1,0 +1,1 @@
+"""What a run leaves: HDF5 frames, snapshots, mesostructure analysis."""

@@ -1,0 +1,1 @@
+"""From G-code to a sampled nozzle path: normalise, plan (pyGCodeDecode), select, generate."""
