@@ -17,8 +17,7 @@ import taichi as ti  # noqa: E402
 
 from taichi_mex.errors import UserInputError  # noqa: E402
 
-ARCHES = ("cpu", "gpu")
-PRECISIONS = ("f32", "f64")
+from taichi_mex.options import ARCHES, PRECISIONS  # noqa: E402
 
 _current: dict = {}
 

@@ -1,18 +1,216 @@
-"""Options (plain dataclasses, SI units unless a name says mm) and named presets.
+"""Options: typed dataclasses, SI units unless a name says mm, with their checks and flags.
 
-Invalid values and combinations fail in :meth:`validate` with a message that says what to
-change; nothing is checked inside the time loop.
+Every field is declared with :func:`opt`: a help text that states its unit, a check that
+:func:`validate_fields` applies (so ``validate()`` covers every field), and optionally the
+command-line flag and the flat sweep names that reach it. The command line, the TOML sweeps
+and ``config.json`` are all generated from these declarations: a field added here reaches
+all three without further edits. Nothing is checked inside the time loop.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 
 from taichi_mex.errors import UserInputError
 
+
+# ----------------------------------------------------------------------------- checks
+class Check:
+    """A predicate on one option value; ``problem(value)`` says what is wrong, or None."""
+
+    def problem(self, value) -> str | None:
+        raise NotImplementedError
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+class Range(Check):
+    """A finite number in [lo, hi] (open ends with lo_open / hi_open; None: unbounded)."""
+
+    def __init__(self, lo=None, hi=None, lo_open=False, hi_open=False, integer=False):
+        self.lo, self.hi, self.lo_open, self.hi_open, self.integer = lo, hi, lo_open, hi_open, integer
+
+    def problem(self, value):
+        if self.integer and not (isinstance(value, int) and not isinstance(value, bool)):
+            return "must be a whole number"
+        if not _number(value):
+            return "must be a finite number"
+        lo_bad = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
+        hi_bad = self.hi is not None and (value >= self.hi if self.hi_open else value > self.hi)
+        if lo_bad or hi_bad:
+            left = "-inf" if self.lo is None else f"{self.lo:g}"
+            right = "inf" if self.hi is None else f"{self.hi:g}"
+            return (f"must lie in {'(' if self.lo_open or self.lo is None else '['}{left}, "
+                    f"{right}{')' if self.hi_open or self.hi is None else ']'}")
+        return None
+
+
+def Positive() -> Range:  # noqa: N802 - reads as a check in field declarations
+    return Range(0.0, None, lo_open=True)
+
+
+def NonNegative() -> Range:  # noqa: N802
+    return Range(0.0, None)
+
+
+class OneOf(Check):
+    def __init__(self, *choices):
+        self.choices = choices
+
+    def problem(self, value):
+        if any(value == c and type(value) is type(c) for c in self.choices):
+            return None
+        return "must be one of " + ", ".join(repr(c) for c in self.choices)
+
+
+class Either(Check):
+    """The value passes any of the checks (e.g. None or a positive number)."""
+
+    def __init__(self, *checks):
+        self.checks = checks
+
+    def problem(self, value):
+        problems = [c.problem(value) for c in self.checks]
+        return None if any(p is None for p in problems) else " or ".join(p for p in problems if p)
+
+
+class Text(Check):
+    def problem(self, value):
+        return None if isinstance(value, str) and value.strip() else "must be non-empty text"
+
+
+class Flag(Check):
+    def problem(self, value):
+        return None if isinstance(value, bool) else "must be true or false"
+
+
+class Table(Check):
+    """((x, value), ...) points with increasing x and positive values; empty = off."""
+
+    def problem(self, value):
+        try:
+            pts = [(float(a), float(b)) for a, b in value]
+        except (TypeError, ValueError):
+            return "must be a list of (temperature, value) pairs"
+        if any(b2[0] <= b1[0] for b1, b2 in zip(pts, pts[1:])) or any(b <= 0 for _, b in pts):
+            return "needs increasing temperatures and positive values"
+        return None
+
+
+NONE = OneOf(None)
+
+
+def opt(default=MISSING, *, help: str, check: Check | None = None, flag: tuple | str | None = None,
+        names: tuple = (), parse=None, implies: dict | None = None, const=MISSING,
+        factory=None):
+    """A declared option field.
+
+    ``help`` states the meaning and unit. ``flag``: the command-line spelling(s); ``parse``
+    turns the flag's text into a value (default: the field's type); ``const``: a flag that
+    takes no value and sets this one. ``names``: flat sweep names besides the dotted path.
+    ``implies``: other options (dotted paths from the run description's root) set when this
+    one is given by a user. A nested group of options is declared with ``factory``."""
+    meta = {"help": help, "check": check, "flag": (flag,) if isinstance(flag, str) else flag,
+            "names": tuple(names), "parse": parse, "implies": dict(implies or {}), "const": const}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def validate_fields(obj, path: str = "") -> None:
+    """Apply every field's check, nested groups included; a problem names the option, its
+    value, what is wrong and the field's help (with its unit)."""
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        where = f"{path}{f.name}"
+        if is_dataclass(value):
+            validate_fields(value, where + ".")
+            continue
+        check = f.metadata.get("check")
+        if check is None:
+            raise TypeError(f"option {where} declares no check")  # a programming error
+        problem = check.problem(value)
+        if problem:
+            raise UserInputError(f"Option {where} = {value!r} {problem} ({f.metadata['help']}).")
+
+
+def unchecked_fields(cls, path: str = "") -> list[str]:
+    """Fields declared without a check (the tests require none)."""
+    out = []
+    for f in fields(cls):
+        default = f.default_factory() if f.default_factory is not MISSING else f.default
+        if is_dataclass(default):
+            out += unchecked_fields(type(default), f"{path}{f.name}.")
+        elif not f.metadata.get("check"):
+            out.append(path + f.name)
+    return out
+
+
 SCHEMES = ("edac", "dfsph", "static")
 VISCOSITY_MODELS = ("newtonian", "arrhenius", "cross_wlf")
+ARCHES = ("cpu", "gpu")
+PRECISIONS = ("f32", "f64")
+
+#: named resolutions for 0.2 mm layers (3, 4 and 6 particles across the layer height), picked
+#: from the measured trade table (validation/trade); ``--resolution NAME`` or a spacing in mm
+RESOLUTION_PRESETS = {
+    "draft": {"run": {"spacing_mm": 0.0667}, "particles_per_layer": 3},
+    "standard": {"run": {"spacing_mm": 0.05}, "particles_per_layer": 4},
+    "fine": {"run": {"spacing_mm": 0.0333}, "particles_per_layer": 6},
+}
+
+
+def parse_resolution(text) -> float:
+    """A spacing in mm, or a named resolution (draft, standard, fine)."""
+    if isinstance(text, str) and text in RESOLUTION_PRESETS:
+        return float(RESOLUTION_PRESETS[text]["run"]["spacing_mm"])
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        raise UserInputError(f"'{text}' is neither a spacing in mm nor one of "
+                             f"{', '.join(RESOLUTION_PRESETS)}.") from None
+
+
+def parse_viscosity_scale(text):
+    """'auto', 'off' (= 1, no scaling) or a factor in (0, 1]."""
+    if isinstance(text, str):
+        low = text.strip().lower()
+        if low == "auto":
+            return "auto"
+        if low in ("off", "none"):
+            return 1.0
+        try:
+            return float(low)
+        except ValueError:
+            raise UserInputError(f"the viscosity scale is a number in (0, 1], 'auto' or 'off', "
+                                 f"not '{text}'.") from None
+    return text
+
+
+def parse_optional_float(text):
+    """A number, or 'none' / 'off' for None."""
+    if isinstance(text, str):
+        if text.strip().lower() in ("none", "off", "false"):
+            return None
+        try:
+            return float(text)
+        except ValueError:
+            raise UserInputError(f"'{text}' is neither a number nor 'none'.") from None
+    return text
+
+
+def parse_bool_or_auto(text):
+    if isinstance(text, str):
+        low = text.strip().lower()
+        if low in ("true", "on", "yes", "1"):
+            return True
+        if low in ("false", "off", "no", "0"):
+            return False
+        return low
+    return text
 
 
 @dataclass
@@ -29,34 +227,47 @@ class Material:
     210 degC, n = 0.30, tau* = 5e4 Pa, A2 = 51.6 K); it is not a published grade fit.
     """
 
-    name: str = "PLA"
-    density_kg_m3: float = 1240.0
-    #: Newtonian viscosity, or the reference value for the Arrhenius model
-    viscosity_pa_s: float = 1000.0
-    viscosity_model: str = "newtonian"
-    #: Arrhenius: eta(T) = eta_ref exp(E/R (1/T - 1/T_ref))
-    arrhenius_activation_j_mol: float = 80e3
-    arrhenius_reference_c: float = 220.0
-    #: Cross-WLF (Moldflow form), zero-shear part D1 exp(-A1 (T - D2) / (A2 + T - D2))
-    cross_n: float = 0.30
-    cross_tau_star_pa: float = 5.0e4
-    wlf_d1_pa_s: float = 2.94e9
-    wlf_d2_k: float = 373.15
-    wlf_a1: float = 20.86
-    wlf_a2_k: float = 51.6
-    specific_heat_j_kgk: float = 1800.0
-    conductivity_w_mk: float = 0.13
-    #: temperature-dependent c and k: ((T degC, value), ...) points, linear in between and
-    #: constant beyond; empty = the constants above (physics/thermal.py)
-    specific_heat_table: tuple = ()
-    conductivity_table: tuple = ()
-    glass_transition_c: float = 60.0
-    #: below this the melt stops flowing and becomes a rigid solid (heat must be on);
-    #: the glass transition is where PLA's viscosity diverges (Moldflow's "no-flow" temperature
-    #: of amorphous grades sits at or just above Tg)
-    no_flow_temperature_c: float = 60.0
-    extrusion_temperature_c: float = 220.0
-    emissivity: float = 0.92
+    name: str = opt("PLA", help="material name, for reports", check=Text())
+    density_kg_m3: float = opt(1240.0, help="melt density (kg/m^3)", check=Positive(),
+                               flag="--density")
+    viscosity_pa_s: float = opt(
+        1000.0, help="Newtonian viscosity, or the Arrhenius reference value (Pa s); the flag "
+        "and the sweep name 'viscosity' also make the model Newtonian", check=NonNegative(),
+        flag="--viscosity", names=("viscosity",), implies={"material.viscosity_model": "newtonian"})
+    viscosity_model: str = opt("newtonian", help="newtonian, arrhenius or cross_wlf",
+                               check=OneOf(*VISCOSITY_MODELS), names=("viscosity_model",))
+    arrhenius_activation_j_mol: float = opt(
+        80e3, help="Arrhenius activation energy E in eta(T) = eta_ref exp(E/R (1/T - 1/T_ref)) "
+        "(J/mol)", check=NonNegative())
+    arrhenius_reference_c: float = opt(220.0, help="Arrhenius reference temperature (degC)",
+                                       check=Range(-273.15, None, lo_open=True))
+    cross_n: float = opt(0.30, help="Cross-WLF power-law index n (-)",
+                         check=Range(0.0, 1.0, lo_open=True))
+    cross_tau_star_pa: float = opt(5.0e4, help="Cross-WLF critical stress tau* (Pa)",
+                                   check=Positive())
+    wlf_d1_pa_s: float = opt(2.94e9, help="Cross-WLF D1 in D1 exp(-A1 (T - D2) / (A2 + T - D2)) "
+                             "(Pa s)", check=Positive())
+    wlf_d2_k: float = opt(373.15, help="Cross-WLF D2 (K)", check=Positive())
+    wlf_a1: float = opt(20.86, help="Cross-WLF A1 (-)", check=Positive())
+    wlf_a2_k: float = opt(51.6, help="Cross-WLF A2 (K)", check=Positive())
+    specific_heat_j_kgk: float = opt(1800.0, help="specific heat c (J/kg/K)", check=Positive())
+    conductivity_w_mk: float = opt(0.13, help="thermal conductivity k (W/m/K)", check=Positive())
+    specific_heat_table: tuple = opt(
+        (), help="temperature-dependent c: ((T degC, J/kg/K), ...), linear in between, constant "
+        "beyond; empty = the constant", check=Table())
+    conductivity_table: tuple = opt(
+        (), help="temperature-dependent k: ((T degC, W/m/K), ...); empty = the constant",
+        check=Table())
+    glass_transition_c: float = opt(60.0, help="glass transition (degC)",
+                                    check=Range(-273.15, None, lo_open=True))
+    no_flow_temperature_c: float = opt(
+        60.0, help="below this the melt becomes a rigid solid, with heat on (degC); PLA's "
+        "viscosity diverges at the glass transition", check=Range(-273.15, None, lo_open=True))
+    extrusion_temperature_c: float = opt(
+        220.0, help="melt temperature at the nozzle (degC): the inlet temperature with heat on, "
+        "and where temperature-dependent viscosity is evaluated", check=Range(-273.15, None, lo_open=True),
+        names=("nozzle_temperature_c",))
+    emissivity: float = opt(0.92, help="surface emissivity (-)", check=Range(0.0, 1.0))
 
     def zero_shear_viscosity(self, temperature_c: float) -> float:
         """eta0(T) in Pa s for the chosen model (Newtonian: constant)."""
@@ -70,19 +281,10 @@ class Material:
         return self.wlf_d1_pa_s * math.exp(-self.wlf_a1 * dT / (self.wlf_a2_k + dT))
 
     def validate(self) -> None:
-        for name in ("density_kg_m3", "specific_heat_j_kgk", "conductivity_w_mk"):
-            if not getattr(self, name) > 0:
-                raise UserInputError(f"material {name} must be positive, got {getattr(self, name)}.")
-        if not self.viscosity_pa_s >= 0 or (self.viscosity_pa_s == 0 and self.viscosity_model != "newtonian"):
-            raise UserInputError(f"material viscosity must be positive (0 only for an inviscid "
-                                 f"Newtonian fluid), got {self.viscosity_pa_s}.")
-        if self.viscosity_model not in VISCOSITY_MODELS:
-            raise UserInputError(f"Unknown viscosity model '{self.viscosity_model}'; choose "
-                                 f"{', '.join(VISCOSITY_MODELS)}.")
-        if not 0 <= self.emissivity <= 1:
-            raise UserInputError(f"emissivity must lie in [0, 1], got {self.emissivity}.")
-        if not 0 < self.cross_n <= 1:
-            raise UserInputError(f"Cross-WLF power-law index n must lie in (0, 1], got {self.cross_n}.")
+        validate_fields(self, "material.")
+        if self.viscosity_pa_s == 0 and self.viscosity_model != "newtonian":
+            raise UserInputError("material viscosity must be positive (0 only for an inviscid "
+                                 "Newtonian fluid).")
 
 
 @dataclass
@@ -90,101 +292,145 @@ class EDACOptions:
     """Entropically damped artificial compressibility (Ramachandran & Puri 2019), as in
     PySPH's EDACScheme for free surfaces: summation density, no EOS, PEC integrator."""
 
-    sound_speed_m_s: float = 6.0
-    #: nu_edac = edac_alpha * h * c / 8 (PySPH default 0.5)
-    edac_alpha: float = 0.5
-    #: dt <= cfl * h / (c + |v|max)
-    cfl: float = 0.25
-    clamp_wall_pressure: bool = False
+    sound_speed_m_s: float = opt(6.0, help="artificial sound speed c_s (m/s)", check=Positive(),
+                                 flag="--sound-speed", names=("sound_speed",))
+    edac_alpha: float = opt(0.5, help="nu_edac = edac_alpha h c_s / 8 (-; PySPH's default 0.5)",
+                            check=NonNegative())
+    cfl: float = opt(0.25, help="dt <= cfl h / (c_s + |v|max) (-)",
+                     check=Range(0.0, 1.0, lo_open=True))
+    clamp_wall_pressure: bool = opt(False, help="clamp negative wall pressure to zero", check=Flag())
 
 
 @dataclass
 class DFSPHOptions:
     """Divergence-free SPH (Bender & Koschier 2015/2017) with implicit viscosity."""
 
-    #: stop the density solve at this mean compression error (fraction: 5e-4 = 0.05 %)
-    max_density_error: float = 5e-4
-    #: ... and at this largest error of any particle (mature codes stop on the mean only,
-    #: which a few badly compressed particles next to the moving nozzle hide in)
-    max_density_error_local: float = 1e-2
-    #: stop the divergence solve at this mean error of d(rho)/dt * dt / rho0
-    max_divergence_error: float = 1e-3
-    max_divergence_error_local: float = 1e-2
-    #: after the density solve, sum the density at the step's new positions; while the densest
-    #: melt is compressed more than this (fraction), solve again from that summed density,
-    #: compression only, at most compression_corrections times. The solve's own check is the
-    #: linear prediction rho + dt D(v): melt squeezed onto the plate under the nozzle overshot it
-    #: to 1.8 % (unscaled single bead, dx = 0.05 mm), an O(dt^2) error. None: no check
-    compression_check: float | None = 9e-3
-    compression_corrections: int = 3
-    min_iterations: int = 2
-    max_iterations: int = 100
-    #: True, False, or 'auto': off in creeping steps (every melt particle's nu dt / dx^2 >=
-    #: DFSPH.creeping_diffusion), where the viscous solve, not inertia, sets the velocity; on
-    #: the unscaled single bead it took 40 % of the wall time and changed the section by half
-    #: to one spacing, area and density errors alike (README, Single bead)
-    divergence_solve: bool | str = "auto"
-    #: dt = cfl * 0.4 * spacing / |v|max (SPlisHSPlasH's form)
-    cfl: float = 0.5
-    max_dt_s: float = 1e-3
-    viscosity_tolerance: float = 1e-3
-    viscosity_max_iterations: int = 500
-    #: the plate and nozzle are no-slip for the implicit viscosity solve
-    no_slip: bool = True
+    max_density_error: float = opt(
+        5e-4, help="stop the density solve at this mean compression error (fraction: 5e-4 = "
+        "0.05 %)", check=Range(0.0, 0.1, lo_open=True))
+    max_density_error_local: float = opt(
+        1e-2, help="... and at this largest error of any particle (fraction; mature codes stop "
+        "on the mean only, which a few badly compressed particles next to the moving nozzle "
+        "hide in)", check=Range(0.0, 0.5, lo_open=True))
+    max_divergence_error: float = opt(
+        1e-3, help="stop the divergence solve at this mean error of d(rho)/dt dt / rho0 "
+        "(fraction)", check=Range(0.0, 0.1, lo_open=True))
+    max_divergence_error_local: float = opt(
+        1e-2, help="... and at this largest error of any particle (fraction)",
+        check=Range(0.0, 0.5, lo_open=True))
+    compression_check: float | None = opt(
+        9e-3, help="after the density solve, sum the density at the step's new positions and, "
+        "while the densest melt is compressed more than this (fraction), solve again from that "
+        "density, compression only (the solve itself sees only the linear prediction "
+        "rho + dt D(v)); None: no check", check=Either(NONE, Range(0.0, 0.1, lo_open=True)),
+        parse=parse_optional_float)
+    compression_corrections: int = opt(3, help="at most this many compression corrections per "
+                                       "step", check=Range(0, 20, integer=True))
+    min_iterations: int = opt(2, help="pressure solves run at least this many iterations",
+                              check=Range(0, 1000, integer=True))
+    max_iterations: int = opt(100, help="pressure solves stop after this many iterations",
+                              check=Range(1, 100000, integer=True))
+    divergence_solve: bool | str = opt(
+        "auto", help="true, false or 'auto': off in creeping steps (nu dt / dx^2 >= "
+        "the creeping threshold), where the viscous solve, not inertia, sets the velocity",
+        check=OneOf(True, False, "auto"), parse=parse_bool_or_auto)
+    cfl: float = opt(0.5, help="dt = cfl 0.4 spacing / |v|max (-; SPlisHSPlasH's form)",
+                     check=Range(0.0, 2.0, lo_open=True))
+    max_dt_s: float = opt(1e-3, help="largest time step (s)", check=Positive())
+    viscosity_tolerance: float = opt(1e-3, help="relative residual the implicit viscosity "
+                                     "solve stops at (-)", check=Range(0.0, 1.0, lo_open=True, hi_open=True))
+    viscosity_max_iterations: int = opt(500, help="the implicit viscosity solve stops after this "
+                                        "many CG iterations", check=Range(1, 100000, integer=True))
+    no_slip: bool = opt(True, help="plate and nozzle are no-slip walls for the viscosity solve",
+                        check=Flag())
 
 
 @dataclass
 class ThermalOptions:
     """Heat: Brookshaw conduction, Newton convection, Stefan-Boltzmann radiation."""
 
-    enabled: bool = False
-    convection_w_m2k: float = 0.0
-    #: radiation only when asked: None = off, else the emissivity
-    radiation_emissivity: float | None = None
-    ambient_c: float = 20.0
-    plate_temperature_c: float = 60.0
-    #: 'colour_gradient' (default, calibrated) or 'eigenvalue' (the seed paper's Eq. 8)
-    surface_method: str = "colour_gradient"
+    enabled: bool = opt(False, help="simulate temperature", check=Flag(), flag="--thermal",
+                        const=True, names=("thermal",))
+    convection_w_m2k: float = opt(0.0, help="convective heat transfer coefficient h_c "
+                                  "(W/m^2/K); switches heat on", check=NonNegative(),
+                                  flag="--convection", names=("convection_w_m2k",),
+                                  implies={"run.thermal.enabled": True})
+    radiation_emissivity: float | None = opt(
+        None, help="radiate to ambient with this emissivity (-), None = no radiation; switches "
+        "heat on", check=Either(NONE, Range(0.0, 1.0)), flag="--radiation",
+        names=("radiation_emissivity",), parse=parse_optional_float,
+        implies={"run.thermal.enabled": True})
+    ambient_c: float = opt(20.0, help="ambient temperature (degC); switches heat on",
+                           check=Range(-273.15, None, lo_open=True), flag="--ambient",
+                           names=("ambient_c",), implies={"run.thermal.enabled": True})
+    plate_temperature_c: float = opt(60.0, help="build plate temperature (degC); switches heat on",
+                                     check=Range(-273.15, None, lo_open=True),
+                                     flag="--plate-temperature", names=("plate_temperature_c",),
+                                     implies={"run.thermal.enabled": True})
+    surface_method: str = opt("colour_gradient", help="free-surface area estimate for losses: "
+                              "colour_gradient (calibrated) or eigenvalue (the seed paper's Eq. 8)",
+                              check=OneOf("colour_gradient", "eigenvalue"), flag="--surface-method")
 
 
 @dataclass
 class RunOptions:
     """How a scene is discretised and integrated."""
 
-    scheme: str = "dfsph"
-    spacing_mm: float = 0.05
-    #: 'cubic' or 'wendland_c2'; None = the scheme's choice
-    kernel: str | None = None
-    #: support radius / spacing; None = the scheme's choice
-    support_factor: float | None = None
-    gravity_m_s2: float = 9.81
-    arch: str = "cpu"
-    precision: str = "f32"
-    cpu_threads: int | None = None
-    #: write an HDF5 frame (and snapshots) every this many simulated seconds (None: 10 frames)
-    output_every_s: float | None = None
-    snapshot_field: str = "density"
-    snapshots: bool = True
-    plate_layers: int = 3
-    #: extra plate and domain around the deposition, mm
-    margin_mm: float = 1.0
-    progress: bool = True
-    #: abort if the largest speed exceeds this (m/s): a blow-up, not physics.
-    #: None: 20 x the scene's speed scale (nozzle or gravity-wave speed), at least 1 m/s
-    max_speed_m_s: float | None = None
-    #: multiplies the stable time step; > 1 only to probe stability limits
-    dt_factor: float = 1.0
-    #: refuse a run whose estimated step count exceeds this (days of computing, usually an
-    #: explicit scheme at a real melt viscosity); raise it to insist
-    max_steps: int = 5_000_000
-    #: creeping-flow scaling of the melt viscosity (all values, ratios kept): 'auto' picks the
-    #: smallest factor that keeps the Reynolds number, the gravity number and the gravity
-    #: slump over the run below ``creeping_limit`` (print scenes, DFSPH only), 1.0 = off
-    viscosity_scale: float | str = "auto"
-    creeping_limit: float = 0.05
-    edac: EDACOptions = field(default_factory=EDACOptions)
-    dfsph: DFSPHOptions = field(default_factory=DFSPHOptions)
-    thermal: ThermalOptions = field(default_factory=ThermalOptions)
+    scheme: str = opt("dfsph", help="pressure solver: dfsph (implicit pressure and viscosity), "
+                      "edac (the seed paper's explicit baseline) or static (heat only)",
+                      check=OneOf(*SCHEMES), flag=("--scheme", "--solver"), names=("scheme",))
+    spacing_mm: float = opt(0.05, help="particle spacing (mm), or draft / standard / fine "
+                            "(3 / 4 / 6 particles across a 0.2 mm layer)",
+                            check=Range(1e-3, 100.0), flag=("--resolution", "--spacing-mm"),
+                            names=("spacing_mm", "resolution"), parse=parse_resolution)
+    kernel: str | None = opt(None, help="'cubic' or 'wendland_c2'; None = the scheme's choice",
+                             check=Either(NONE, OneOf("cubic", "wendland_c2")))
+    support_factor: float | None = opt(None, help="support radius / spacing (-); None = the "
+                                       "scheme's choice", check=Either(NONE, Range(1.5, 4.0)))
+    gravity_m_s2: float = opt(9.81, help="gravity (m/s^2, pointing -z)", check=NonNegative())
+    arch: str = opt("cpu", help="cpu or gpu (cuda, vulkan)", check=OneOf(*ARCHES), flag="--arch",
+                    names=("arch",))
+    precision: str = opt("f32", help="floating-point precision of the particle state",
+                         check=OneOf(*PRECISIONS), flag="--precision", names=("precision",))
+    cpu_threads: int | None = opt(None, help="CPU threads (None: all cores)",
+                                  check=Either(NONE, Range(1, 4096, integer=True)),
+                                  flag="--threads", names=("cpu_threads",))
+    output_every_s: float | None = opt(
+        None, help="write an HDF5 frame every this many simulated seconds (None: 10 frames)",
+        check=Either(NONE, Positive()), flag="--output-every", names=("output_every",))
+    snapshot_every_s: float | None = opt(
+        None, help="also write PNG snapshots every this many simulated seconds (None: at the "
+        "end only)", check=Either(NONE, Positive()), flag="--snapshot-every")
+    snapshot_field: str = opt("density", help="field the snapshots are coloured by (density, "
+                              "pressure, velocity, temperature, ...)", check=Text(), flag="--field")
+    snapshots: bool = opt(True, help="write PNG snapshots", check=Flag(), flag="--no-snapshots",
+                          const=False, names=("snapshots",))
+    plate_layers: int = opt(3, help="particle layers of the build plate",
+                            check=Range(1, 50, integer=True))
+    margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",
+                           check=NonNegative())
+    progress: bool = opt(True, help="show a progress bar", check=Flag(), flag="--quiet",
+                         const=False)
+    max_speed_m_s: float | None = opt(
+        None, help="abort if the largest speed exceeds this (m/s): a blow-up, not physics; "
+        "None: 20 x the scene's speed scale, at least 1 m/s", check=Either(NONE, Positive()))
+    dt_factor: float = opt(1.0, help="multiplies the stable time step (-); > 1 only to probe "
+                           "stability limits", check=Range(0.0, 10.0, lo_open=True),
+                           flag="--dt-factor", names=("dt_factor",))
+    max_steps: int = opt(5_000_000, help="refuse a run whose estimated step count exceeds this "
+                         "(days of computing, usually an explicit scheme at a real melt "
+                         "viscosity); raise it to insist", check=Range(1, None, integer=True))
+    viscosity_scale: float | str = opt(
+        "auto", help="creeping-flow scaling of the melt viscosity: 'auto' (the smallest factor "
+        "keeping the Reynolds number, the gravity number and the gravity slump below "
+        "creeping_limit; DFSPH prints only), 'off' or a factor in (0, 1]",
+        check=Either(OneOf("auto"), Range(0.0, 1.0, lo_open=True)), flag="--viscosity-scale",
+        names=("viscosity_scale",), parse=parse_viscosity_scale)
+    creeping_limit: float = opt(0.05, help="largest Reynolds number, gravity number and slump "
+                                "'auto' scaling allows (-)", check=Range(0.0, 1.0, lo_open=True))
+    edac: EDACOptions = opt(help="EDAC scheme", factory=EDACOptions)
+    dfsph: DFSPHOptions = opt(help="DFSPH scheme and implicit viscosity", factory=DFSPHOptions)
+    thermal: ThermalOptions = opt(help="heat", factory=ThermalOptions)
 
     @property
     def spacing_m(self) -> float:
@@ -200,41 +446,7 @@ class RunOptions:
         return self.kernel or "cubic", self.support_factor or 2.0
 
     def validate(self) -> None:
-        if self.scheme not in SCHEMES:
-            raise UserInputError(f"Unknown scheme '{self.scheme}'; choose {', '.join(SCHEMES)}.")
-        if not 1e-3 <= self.spacing_mm <= 100:
-            raise UserInputError(f"Particle spacing {self.spacing_mm} mm is outside 0.001-100 mm.")
-        kernel, factor = self.resolved_kernel()
-        if kernel not in ("cubic", "wendland_c2"):
-            raise UserInputError(f"Unknown kernel '{kernel}'; choose cubic or wendland_c2.")
-        if not 1.5 <= factor <= 4.0:
-            raise UserInputError(f"Support radius of {factor} spacings is outside 1.5-4.")
-        if self.viscosity_scale != "auto" and not (isinstance(self.viscosity_scale, (int, float))
-                                                    and 0 < self.viscosity_scale <= 1):
-            raise UserInputError(f"viscosity_scale must be 'auto' or a number in (0, 1], got "
-                                 f"{self.viscosity_scale!r}.")
-        if not 0 < self.dt_factor <= 10:
-            raise UserInputError(f"dt_factor {self.dt_factor} is outside (0, 10].")
-        if self.plate_layers < 1:
-            raise UserInputError("The plate needs at least one layer of particles.")
-        if self.edac.sound_speed_m_s <= 0 or not 0 < self.edac.cfl <= 1:
-            raise UserInputError("EDAC needs a positive sound speed and 0 < cfl <= 1.")
-        if not 0 < self.dfsph.cfl <= 2:
-            raise UserInputError("DFSPH cfl must lie in (0, 2].")
-        check = self.dfsph.compression_check
-        if check is not None and not (isinstance(check, (int, float)) and 0 < check <= 0.1):
-            raise UserInputError(f"DFSPH compression_check is a fraction in (0, 0.1] (9e-3 = 0.9 %) "
-                                 f"or None (off), got {check!r}.")
-        if not (isinstance(self.dfsph.compression_corrections, int)
-                and 0 <= self.dfsph.compression_corrections <= 20):
-            raise UserInputError(f"DFSPH compression_corrections is a whole number in 0-20, got "
-                                 f"{self.dfsph.compression_corrections!r}.")
-        if self.dfsph.divergence_solve not in (True, False, "auto"):
-            raise UserInputError(f"DFSPH divergence_solve is True, False or 'auto', got "
-                                 f"{self.dfsph.divergence_solve!r}.")
-        if self.thermal.surface_method not in ("colour_gradient", "eigenvalue"):
-            raise UserInputError(f"Unknown surface method '{self.thermal.surface_method}'; choose "
-                                 "colour_gradient or eigenvalue.")
+        validate_fields(self, "run.")
 
 
 PAPER_PRESET = {
@@ -248,15 +460,6 @@ PAPER_PRESET = {
 }
 
 PRESETS = {"paper": PAPER_PRESET}
-
-#: named resolutions for 0.2 mm layers (3, 4 and 6 particles across the layer height), picked
-#: from the measured trade table in README.md; ``--resolution NAME`` or a spacing in mm
-RESOLUTION_PRESETS = {
-    "draft": {"run": {"spacing_mm": 0.0667}, "particles_per_layer": 3},
-    "standard": {"run": {"spacing_mm": 0.05}, "particles_per_layer": 4},
-    "fine": {"run": {"spacing_mm": 0.0333}, "particles_per_layer": 6},
-}
-
 
 def apply_overrides(obj, overrides: dict):
     """Return a copy of a dataclass with (nested) fields replaced from a dict."""
