@@ -25,3 +25,22 @@ def gcode_path(name: str = DEFAULT_GCODE) -> Path:
 
 def bundled_names() -> list[str]:
     return sorted(p.name for p in gcode_dir().glob("*.gcode"))
+
+
+def resolve_gcode(value, base_dir=None) -> Path:
+    """A path (relative to ``base_dir``, else the working folder) or a bundled name
+    (``'block_3x3'``) -> the absolute path of an existing file."""
+    from taichi_mex.errors import UserInputError
+
+    text = str(value)
+    names = bundled_names()
+    plain = text if text.endswith(".gcode") else text + ".gcode"
+    path = Path(text).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    if path.is_file():
+        return path.resolve()
+    if "/" not in text and plain in names:
+        return gcode_path(plain)
+    raise UserInputError(f"G-code '{text}' is neither a file ({path}) nor a bundled name "
+                         f"({', '.join(n.removesuffix('.gcode') for n in names)}).")

@@ -105,15 +105,17 @@ NONE = OneOf(None)
 
 def opt(default=MISSING, *, help: str, check: Check | None = None, flag: tuple | str | None = None,
         names: tuple = (), parse=None, implies: dict | None = None, const=MISSING,
-        factory=None):
+        flag_help: str | None = None, factory=None):
     """A declared option field.
 
     ``help`` states the meaning and unit. ``flag``: the command-line spelling(s); ``parse``
     turns the flag's text into a value (default: the field's type); ``const``: a flag that
     takes no value and sets this one. ``names``: flat sweep names besides the dotted path.
     ``implies``: other options (dotted paths from the run description's root) set when this
-    one is given by a user. A nested group of options is declared with ``factory``."""
+    one is given by a user. ``flag_help``: the flag's own help where it differs (a flag that
+    switches something off). A nested group of options is declared with ``factory``."""
     meta = {"help": help, "check": check, "flag": (flag,) if isinstance(flag, str) else flag,
+            "flag_help": flag_help,
             "names": tuple(names), "parse": parse, "implies": dict(implies or {}), "const": const}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
@@ -404,13 +406,13 @@ class RunOptions:
     snapshot_field: str = opt("density", help="field the snapshots are coloured by (density, "
                               "pressure, velocity, temperature, ...)", check=Text(), flag="--field")
     snapshots: bool = opt(True, help="write PNG snapshots", check=Flag(), flag="--no-snapshots",
-                          const=False, names=("snapshots",))
+                          const=False, names=("snapshots",), flag_help="skip the PNG snapshots")
     plate_layers: int = opt(3, help="particle layers of the build plate",
                             check=Range(1, 50, integer=True))
     margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",
                            check=NonNegative())
     progress: bool = opt(True, help="show a progress bar", check=Flag(), flag="--quiet",
-                         const=False)
+                         const=False, flag_help="no progress bar")
     max_speed_m_s: float | None = opt(
         None, help="abort if the largest speed exceeds this (m/s): a blow-up, not physics; "
         "None: 20 x the scene's speed scale, at least 1 m/s", check=Either(NONE, Positive()))
@@ -452,11 +454,11 @@ class RunOptions:
 PAPER_PRESET = {
     "description": "The seed paper's PySPH baseline: EDAC, c_s = 6 m/s, eta = 0.1 Pa s, "
                    "nozzle one diameter above the plate, 60 mm/s (gcode/paper_*.gcode).",
+    "scene": "print",
+    "scene_options": {"gcode": "paper_bead.gcode", "nozzle_height": "one_diameter",
+                      "nozzle_tip_outer_diameter_mm": None},
     "run": {"scheme": "edac", "edac": {"sound_speed_m_s": 6.0}},
     "material": {"viscosity_pa_s": 0.1, "viscosity_model": "newtonian"},
-    "gcode": "paper_bead.gcode",
-    "nozzle_height": "one_diameter",
-    "nozzle_tip": False,
 }
 
 PRESETS = {"paper": PAPER_PRESET}

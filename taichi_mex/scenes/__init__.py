@@ -1,40 +1,44 @@
 """Scenes: each sets up particles, domain, times and the physics it needs.
 
-``SCENES`` maps the command-line name to a module-level ``cli`` spec: a function adding the
-scene's own options to a parser, and one building ``(scene, run_defaults, material_overrides)``
-from the parsed arguments. ``run_defaults`` are applied before the user's run options.
+A scene module declares its options as a dataclass of :func:`~taichi_mex.options.opt` fields
+(units in the help, a check each, flags for the command line) and registers a
+:class:`SceneEntry`: the options class, how to build the scene from them, and the run and
+material defaults the scene implies (applied before the user's own choices).
 """
+
+from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Callable
 
 
-@dataclass
-class SceneCLI:
+def _no_defaults(_options) -> dict:
+    return {}
+
+
+@dataclass(frozen=True)
+class SceneEntry:
     name: str
     help: str
-    add_arguments: Callable
+    #: the scene's options dataclass
+    options: type
+    #: options -> scene object
     build: Callable
+    #: options -> {"run": {...}, "material": {...}}: defaults this scene implies
+    defaults: Callable = _no_defaults
 
 
-SCENES: dict[str, SceneCLI] = {}
+SCENES: dict[str, SceneEntry] = {}
 
 
-def register(spec: SceneCLI) -> SceneCLI:
-    SCENES[spec.name] = spec
-    return spec
+def register(entry: SceneEntry) -> SceneEntry:
+    SCENES[entry.name] = entry
+    return entry
 
 
-def load_all() -> dict[str, SceneCLI]:
+def load_all() -> dict[str, SceneEntry]:
     """Import the scene modules so that they register themselves."""
-    from taichi_mex.scenes import collapse, hydrostatic, shear  # noqa: F401
+    from taichi_mex.scenes import (collapse, dam_break, hydrostatic, print, shear,  # noqa: F401
+                                   thermal_beam)
 
-    try:
-        from taichi_mex.scenes import thermal_beam  # noqa: F401
-    except ImportError:
-        pass
-    try:
-        from taichi_mex.scenes import dam_break  # noqa: F401
-    except ImportError:
-        pass
     return SCENES

@@ -26,12 +26,26 @@ class InletSpec:
 
 
 @dataclass
+class CreepingScales:
+    """What sets a print's creeping-flow numbers: the nozzle's speed, the nozzle bore, the
+    run's duration (Reynolds number rho U L / eta, gravity number rho g L^2 / (eta U), slump
+    rho g L T / eta)."""
+
+    speed_m_s: float
+    length_m: float
+    duration_s: float
+
+
+@dataclass
 class ScenePlan:
     name: str
     domain_lo_m: np.ndarray
     domain_hi_m: np.ndarray
     t_start_s: float
     t_end_s: float
+    #: the fastest motion the scene prescribes or releases (nozzle, plate, free fall), m/s:
+    #: the blow-up speed limit and the time-step estimate follow from it
+    speed_scale_m_s: float
     blocks: list[ParticleBlock] = field(default_factory=list)
     inlet: InletSpec | None = None
     #: fluid particles the inlet may add over the run (capacity planning)
@@ -43,7 +57,14 @@ class ScenePlan:
     section_direction: np.ndarray | None = None
     #: commanded deposition (m^3 as a function of time), for mass bookkeeping
     commanded_volume_m3: object = None
-    notes: dict = field(default_factory=dict)
+    #: the longest time step the scene's own sampling allows (s); None: the scheme's limit
+    max_dt_s: float | None = None
+    #: heat's diffusion limit for scenes that know it up front (s)
+    thermal_dt_s: float | None = None
+    #: print scenes: the scales of the creeping-flow numbers (viscosity scaling)
+    creeping: CreepingScales | None = None
+    #: what the scene reports about itself (copied into the summary; nothing reads it back)
+    info: dict = field(default_factory=dict)
 
     @property
     def origin_m(self) -> np.ndarray:

@@ -9,11 +9,13 @@ virtual time origin t0 (r ~ (t - t0)^(1/8)), so we compare the late-time radius 
 """
 
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
-from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.options import Positive, Range, opt
+from taichi_mex.scenes import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 HUPPERT_ETA_N = (2**10 / (3**4 * math.pi**3)) ** 0.125
@@ -28,6 +30,7 @@ class CollapseScene:
 
     def __init__(self, radius_mm: float = 3.0, height_mm: float = 10.0, until_s: float = 5.0,
                  samples: int = 40):
+        self.options = CollapseOptions(radius_mm, height_mm, until_s, samples)
         self.R = radius_mm * 1e-3
         self.Hc = height_mm * 1e-3
         self.until_s = float(until_s)
@@ -58,9 +61,9 @@ class CollapseScene:
             t_start_s=0.0, t_end_s=self.until_s,
             blocks=[ParticleBlock(fluid, FLUID), ParticleBlock(plate, PLATE)],
             section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
-            notes={"volume_m3": volume, "speed_scale_m_s": math.sqrt(run.gravity_m_s2 * self.Hc),
-                   # enough steps to sample the front; creeping flow itself allows far more
-                   "max_dt_s": min(0.05, self.until_s / 60)},
+            speed_scale_m_s=math.sqrt(run.gravity_m_s2 * self.Hc),
+            # enough steps to sample the front; creeping flow itself allows far more
+            max_dt_s=min(0.05, self.until_s / 60), info={"volume_m3": volume},
         )
 
     def front_radius(self, sim) -> float:
@@ -85,7 +88,7 @@ class CollapseScene:
 
     def analyse(self, sim) -> dict:
         nu = sim.material.viscosity_pa_s / sim.material.density_kg_m3
-        V = sim.plan.notes["volume_m3"]
+        V = sim.plan.info["volume_m3"]
         g = sim.run_opts.gravity_m_s2
         if not self.front or self.front[-1][0] < sim.time_s - 1e-9:
             self.front.append((sim.time_s, self.front_radius(sim)))
@@ -130,21 +133,23 @@ class CollapseScene:
         plt.close(fig)
 
 
-def _add_arguments(p) -> None:
-    p.add_argument("--radius-mm", type=float, default=4.0, help="initial cylinder radius (mm)")
-    p.add_argument("--height-mm", type=float, default=4.0, help="initial cylinder height (mm)")
-    p.add_argument("--density", type=float, default=1000.0, help="fluid density (kg/m^3)")
-    p.add_argument("--until", type=float, default=2.0, help="simulated time (s)")
+@dataclass
+class CollapseOptions:
+    radius_mm: float = opt(4.0, help="initial cylinder radius (mm)", check=Positive(),
+                           flag="--radius-mm")
+    height_mm: float = opt(4.0, help="initial cylinder height (mm)", check=Positive(),
+                           flag="--height-mm")
+    until_s: float = opt(2.0, help="simulated time (s)", check=Positive(), flag="--until",
+                         names=("until",))
+    samples: int = opt(40, help="front samples, log-spaced and evenly spaced in time",
+                       check=Range(3, 10000, integer=True))
 
 
-def _build(args):
-    scene = CollapseScene(args.radius_mm, args.height_mm, args.until)
-    run = {"scheme": "dfsph", "spacing_mm": 0.5}
-    material = {"name": "collapse fluid", "density_kg_m3": args.density,
-                "viscosity_pa_s": args.viscosity if args.viscosity is not None else 10.0,
-                "viscosity_model": "newtonian"}
-    return scene, run, material
+def _defaults(_options) -> dict:
+    return {"run": {"scheme": "dfsph", "spacing_mm": 0.5},
+            "material": {"name": "collapse fluid", "density_kg_m3": 1000.0, "viscosity_pa_s": 10.0,
+                         "viscosity_model": "newtonian"}}
 
 
-register(SceneCLI("collapse", "a viscous cylinder slumping on a no-slip plate (Huppert 1982)",
-                  _add_arguments, _build))
+register(SceneEntry("collapse", "a viscous cylinder slumping on a no-slip plate (Huppert 1982)",
+                    CollapseOptions, lambda o: CollapseScene(**asdict(o)), _defaults))

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
-from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.options import Positive, opt
+from taichi_mex.scenes import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan
 
 #: lattice coordinates (units of dx) closer than this to a face count as on it
@@ -82,7 +83,10 @@ class DamBreakGeometry:
 class DamBreak3DScene:
     name = "dam-break"
 
-    def __init__(self, until_s: float = 1.0, geometry: DamBreakGeometry | None = None):
+    def __init__(self, until_s: float = 1.0, geometry: DamBreakGeometry | None = None,
+                 dx_m: float = 0.02):
+        # dx_m: the spacing the scene implies for the run (run_options), kept for config.json
+        self.options = DamBreakOptions(dx_m, until_s)
         self.until_s = float(until_s)
         self.geometry = geometry or DamBreakGeometry()
         self.counts: dict[str, int] = {}
@@ -108,8 +112,8 @@ class DamBreak3DScene:
             blocks=[ParticleBlock(parts["fluid"], FLUID), ParticleBlock(walls, PLATE)],
             section_point_m=np.array([0.5 * geo.container_length_m, 0.0, 0.5 * geo.fluid_height_m]),
             section_direction=np.array([1.0, 0.0, 0.0]),
-            notes={"speed_scale_m_s": geo.max_speed_m_s(run.gravity_m_s2),
-                   "fluid_particles": self.counts["fluid"],
+            speed_scale_m_s=geo.max_speed_m_s(run.gravity_m_s2),
+            info={"fluid_particles": self.counts["fluid"],
                    "boundary_particles": self.counts["boundary"],
                    "obstacle_particles": self.counts["obstacle"]},
         )
@@ -150,16 +154,14 @@ def material() -> dict:
             "viscosity_model": "newtonian"}
 
 
-def _add_arguments(p) -> None:
-    p.add_argument("--dx", type=float, default=0.02,
-                   help="particle spacing in m, as PySPH's --dx (default 0.02: 143,051 particles)")
-    p.add_argument("--until", type=float, default=1.0,
-                   help="simulated time in s (default 1.0; PySPH's example runs to 6 s)")
+@dataclass
+class DamBreakOptions:
+    dx_m: float = opt(0.02, help="particle spacing (m), as PySPH's --dx (0.02: 143,051 "
+                      "particles); sets the run's spacing", check=Positive(), flag="--dx")
+    until_s: float = opt(1.0, help="simulated time (s; PySPH's example runs to 6 s)",
+                         check=Positive(), flag="--until", names=("until",))
 
 
-def _build(args):
-    return DamBreak3DScene(args.until), run_options(args.dx), material()
-
-
-register(SceneCLI("dam-break", "PySPH's 3D dam break (SPHERIC test 2) with EDAC, 143k particles",
-                  _add_arguments, _build))
+register(SceneEntry("dam-break", "PySPH's 3D dam break (SPHERIC test 2) with EDAC, 143k particles",
+                    DamBreakOptions, lambda o: DamBreak3DScene(o.until_s, dx_m=o.dx_m),
+                    lambda o: {"run": run_options(o.dx_m), "material": material()}))

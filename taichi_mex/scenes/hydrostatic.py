@@ -1,9 +1,12 @@
 """A column of fluid at rest in a tank: pressure must settle to rho g (H - z)."""
 
+from dataclasses import asdict, dataclass
+
 import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
-from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.options import Positive, opt
+from taichi_mex.scenes import SceneEntry, register
 from taichi_mex.scenes.base import ScenePlan, box_walls, lattice_block
 
 
@@ -11,6 +14,7 @@ class HydrostaticScene:
     name = "hydrostatic"
 
     def __init__(self, width_mm: float = 8.0, height_mm: float = 16.0, until_s: float = 0.3):
+        self.options = HydrostaticOptions(width_mm, height_mm, until_s)
         self.width_m = width_mm * 1e-3
         self.height_m = height_mm * 1e-3
         self.until_s = until_s
@@ -33,8 +37,8 @@ class HydrostaticScene:
             blocks=[ParticleBlock(fluid, FLUID), ParticleBlock(walls, PLATE)],
             section_point_m=0.5 * (lo + hi),
             section_direction=np.array([0.0, 1.0, 0.0]),
-            notes={"fluid_height_m": float(fluid[:, 2].max() + 0.5 * dx),
-                   "speed_scale_m_s": float(np.sqrt(2 * run.gravity_m_s2 * self.height_m))},
+            speed_scale_m_s=float(np.sqrt(2 * run.gravity_m_s2 * self.height_m)),
+            info={"fluid_height_m": float(fluid[:, 2].max() + 0.5 * dx)},
         )
 
     def analyse(self, sim) -> dict:
@@ -82,21 +86,21 @@ class HydrostaticScene:
         }
 
 
-def _add_arguments(p) -> None:
-    p.add_argument("--width-mm", type=float, default=8.0, help="tank width (mm)")
-    p.add_argument("--height-mm", type=float, default=12.0, help="fluid height (mm)")
-    p.add_argument("--until", type=float, default=0.3, help="simulated time (s)")
+@dataclass
+class HydrostaticOptions:
+    width_mm: float = opt(8.0, help="tank width (mm)", check=Positive(), flag="--width-mm")
+    height_mm: float = opt(12.0, help="fluid height (mm)", check=Positive(), flag="--height-mm")
+    until_s: float = opt(0.3, help="simulated time (s)", check=Positive(), flag="--until",
+                         names=("until",))
 
 
-def _build(args):
-    scene = HydrostaticScene(args.width_mm, args.height_mm, args.until)
-    c = 10 * float(np.sqrt(2 * 9.81 * args.height_mm * 1e-3))
-    run = {"scheme": "dfsph", "spacing_mm": 1.0, "edac": {"sound_speed_m_s": c}}
-    material = {"name": "water-like", "density_kg_m3": 1000.0,
-                "viscosity_pa_s": args.viscosity if args.viscosity is not None else 1.0,
-                "viscosity_model": "newtonian"}
-    return scene, run, material
+def _defaults(options) -> dict:
+    # EDAC's artificial sound speed: ten times the fastest free-fall speed over the column
+    c = 10 * float(np.sqrt(2 * 9.81 * options.height_mm * 1e-3))
+    return {"run": {"scheme": "dfsph", "spacing_mm": 1.0, "edac": {"sound_speed_m_s": c}},
+            "material": {"name": "water-like", "density_kg_m3": 1000.0, "viscosity_pa_s": 1.0,
+                         "viscosity_model": "newtonian"}}
 
 
-register(SceneCLI("hydrostatic", "a fluid column at rest: pressure against rho g depth",
-                  _add_arguments, _build))
+register(SceneEntry("hydrostatic", "a fluid column at rest: pressure against rho g depth",
+                    HydrostaticOptions, lambda o: HydrostaticScene(**asdict(o)), _defaults))

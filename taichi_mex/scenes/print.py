@@ -6,13 +6,74 @@ are laid down as solid, slicer-shaped beads (rounded rectangles, A = (W - H) H +
 at the commanded volume per mm), so ``--layers 2-3`` prints onto a realistic substrate.
 """
 
+import logging
+from dataclasses import dataclass
+
 import numpy as np
 
-from taichi_mex.sim.boundaries import plate_lattice
+from taichi_mex import bundled
 from taichi_mex.errors import UserInputError
+from taichi_mex.options import Either, NONE, NonNegative, OneOf, Positive, Text, opt
+from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.sim.boundaries import plate_lattice
 from taichi_mex.toolpath.plan import make_plan
+from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 from taichi_mex.core.state import PLATE, SOLID
-from taichi_mex.scenes.base import InletSpec, ParticleBlock, ScenePlan
+from taichi_mex.scenes.base import CreepingScales, InletSpec, ParticleBlock, ScenePlan
+
+
+log = logging.getLogger("taichi_mex")
+
+
+class _Parses:
+    """A text option that a parser must accept (layers, region)."""
+
+    def __init__(self, parse):
+        self.parse = parse
+
+    def problem(self, value):
+        if value is None:
+            return None
+        try:
+            self.parse(value)
+        except UserInputError as exc:
+            return str(exc).rstrip(".")
+        return None
+
+
+@dataclass
+class PrintOptions:
+    """What part of which G-code is printed, and how the nozzle sits."""
+
+    gcode: str = opt(bundled.DEFAULT_GCODE, help="G-code file, or a bundled name (single_bead, "
+                     "block_3x3, paper_bead, paper_block_3x3, corner)", check=Text(),
+                     names=("gcode",))
+    printer: str = opt("prusa_mini", help="pyGCodeDecode printer preset name, or FILE.yaml[:NAME]",
+                       check=Text(), flag="--printer", names=("printer",))
+    layers: str | int | None = opt(None, help="layers to simulate, e.g. 2-3 (1-based; None: all)",
+                                   check=_Parses(parse_layers), flag="--layers", names=("layers",))
+    region: str | None = opt(None, help="XY box XMIN:XMAX,YMIN:YMAX (mm)",
+                             check=_Parses(parse_region), flag="--region", names=("region",))
+    until_s: float | None = opt(None, help="stop at this print time (s)",
+                                check=Either(NONE, Positive()), flag="--until", names=("until",))
+    settle_s: float = opt(0.0, help="simulate this long after the last deposition (s)",
+                          check=NonNegative(), flag="--settle", names=("settle",))
+    nozzle_height: str = opt("gcode", help="'gcode' (the nozzle at the G-code's Z) or "
+                             "'one_diameter' (the seed paper's)", check=OneOf("gcode", "one_diameter"),
+                             names=("nozzle_height",))
+    nozzle_tip_outer_diameter_mm: float | None = opt(
+        1.0, help="flat nozzle tip around the bore (mm), None for none", check=Either(NONE, Positive()),
+        names=("nozzle_tip_outer_diameter_mm",))
+
+    def validate(self) -> None:
+        bundled.resolve_gcode(self.gcode)
+
+
+def _build(o: PrintOptions):
+    return PrintScene(bundled.resolve_gcode(o.gcode), o.printer, layers=parse_layers(o.layers),
+                      region_mm=parse_region(o.region), until_s=o.until_s, settle_s=o.settle_s,
+                      nozzle_tip_outer_diameter_mm=o.nozzle_tip_outer_diameter_mm,
+                      nozzle_height=o.nozzle_height)
 
 
 class PrintScene:
@@ -36,6 +97,12 @@ class PrintScene:
         if nozzle_height not in ("gcode", "one_diameter"):
             raise ValueError("nozzle_height is 'gcode' or 'one_diameter'")
         self.nozzle_height = nozzle_height
+        self.options = PrintOptions(
+            gcode=str(gcode), printer=str(printer),
+            layers=None if layers is None else ",".join(str(k) for k in layers),
+            region=None if region_mm is None else "{:g}:{:g},{:g}:{:g}".format(*region_mm),
+            until_s=until_s, settle_s=self.settle_s, nozzle_height=nozzle_height,
+            nozzle_tip_outer_diameter_mm=nozzle_tip_outer_diameter_mm)
         self.print_plan = make_plan(gcode, printer, layers=layers, until_s=until_s,
                                     region_mm=region_mm, plan_whole_file=False)
         self.plan_section = None
@@ -101,12 +168,10 @@ class PrintScene:
             blocks=blocks, inlet=InletSpec(sel, zoff, tip), inflow_particles=inflow,
             needs=set(), section_point_m=section, section_direction=direction / np.linalg.norm(direction),
             commanded_volume_m3=lambda t: float(sel.volume_until([t])[0]) * 1e-9,
-            notes={"gcode": str(traj.source), "printer": traj.printer.name,
-                   "speed_scale_m_s": max(speed, 1e-3), "z_offset_m": zoff,
-                   # creeping-flow numbers: nozzle speed over the nozzle bore, the run's duration
-                   "creeping_speed_m_s": max(speed, 1e-3),
-                   "creeping_length_m": traj.printer.nozzle_diameter_mm * 1e-3,
-                   "creeping_duration_s": t1 - t0,
+            speed_scale_m_s=max(speed, 1e-3),
+            # creeping-flow numbers: nozzle speed over the nozzle bore, the run's duration
+            creeping=CreepingScales(max(speed, 1e-3), traj.printer.nozzle_diameter_mm * 1e-3, t1 - t0),
+            info={"gcode": str(traj.source), "printer": traj.printer.name, "z_offset_m": zoff,
                    "selected_layers": sel.report()["selected_layers"],
                    "substrate_particles": int(len(substrate)),
                    "nozzle_diameter_m": traj.printer.nozzle_diameter_mm * 1e-3},
@@ -190,7 +255,7 @@ class PrintScene:
         try:
             sim.mesostructure = analyse_run(out_dir)
         except Exception as exc:  # noqa: BLE001 - the run's results stand without the analysis
-            print(f"warning: mesostructure analysis skipped: {exc}")
+            log.warning("mesostructure analysis skipped: %s", exc)
 
     def bead_metrics(self, sim, window_mm: float = 1.0) -> dict:
         """Material cross-section of the bead through the section point, from the particle
@@ -240,3 +305,7 @@ def _obround_points(p0, p1, width, z_bot, h, dx, lo_xy, hi_xy) -> np.ndarray:
     dz = P[:, 2] - zc
     inside = (lateral <= half_flat) | ((lateral - half_flat) ** 2 + dz**2 <= (0.5 * h) ** 2)
     return P[inside]
+
+
+register(SceneEntry("print", "a print from G-code: the moving nozzle over the build plate",
+                    PrintOptions, _build))

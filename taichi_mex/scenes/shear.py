@@ -9,11 +9,13 @@ valid while the layer is thick compared with the penetration depth 2 sqrt(nu t).
 """
 
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
-from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.options import Positive, opt
+from taichi_mex.scenes import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 
@@ -26,6 +28,7 @@ class ShearStartScene:
 
     def __init__(self, length_mm: float = 6.0, height_mm: float = 3.0, plate_speed_m_s: float = 0.01,
                  until_s: float = 0.01):
+        self.options = ShearOptions(length_mm, height_mm, plate_speed_m_s, until_s)
         self.length_m = length_mm * 1e-3
         self.height_m = height_mm * 1e-3
         self.U = float(plate_speed_m_s)
@@ -49,7 +52,7 @@ class ShearStartScene:
                     ParticleBlock(plate, PLATE, velocity_m_s=np.array([self.U, 0.0, 0.0]))],
             section_point_m=0.5 * (lo + hi), section_direction=np.array([0.0, 1.0, 0.0]),
             # 40 steps at least: implicit Euler's error in the start-up transient stays small
-            notes={"speed_scale_m_s": self.U, "conveyor_plate": True, "max_dt_s": self.until_s / 40},
+            speed_scale_m_s=self.U, max_dt_s=self.until_s / 40,
         )
 
     def analyse(self, sim) -> dict:
@@ -59,7 +62,7 @@ class ShearStartScene:
         dx = sim.run_opts.spacing_m
         c = 0.5 * self.length_m
         core = (np.abs(x[:, 0] - c) < 0.2 * self.length_m) & (np.abs(x[:, 1] - c) < 0.2 * self.length_m)
-        nu = sim.material.viscosity_pa_s * sim.plan.notes.get("viscosity_scale", 1.0) / sim.material.density_kg_m3
+        nu = sim.material.viscosity_pa_s * sim.creeping["viscosity_scale"] / sim.material.density_kg_m3
         t = sim.time_s - sim.plan.t_start_s
         depth = 2.0 * math.sqrt(nu * t)
         zs, errs, sim_u, ref_u = [], [], [], []
@@ -80,21 +83,22 @@ class ShearStartScene:
                 "penetration_depth_m": depth}
 
 
-def _add_arguments(p) -> None:
-    p.add_argument("--length-mm", type=float, default=6.0, help="block length and width (mm)")
-    p.add_argument("--height-mm", type=float, default=3.0, help="layer thickness (mm)")
-    p.add_argument("--plate-speed", type=float, default=0.01, help="plate speed U (m/s)")
-    p.add_argument("--until", type=float, default=0.01, help="simulated time (s)")
+@dataclass
+class ShearOptions:
+    length_mm: float = opt(6.0, help="block length and width (mm)", check=Positive(),
+                           flag="--length-mm")
+    height_mm: float = opt(3.0, help="layer thickness (mm)", check=Positive(), flag="--height-mm")
+    plate_speed_m_s: float = opt(0.01, help="plate speed U (m/s)", check=Positive(),
+                                 flag="--plate-speed", names=("plate_speed",))
+    until_s: float = opt(0.01, help="simulated time (s)", check=Positive(), flag="--until",
+                         names=("until",))
 
 
-def _build(args):
-    scene = ShearStartScene(args.length_mm, args.height_mm, args.plate_speed, args.until)
-    run = {"scheme": "dfsph", "spacing_mm": 0.2, "gravity_m_s2": 0.0}
-    material = {"name": "shear fluid", "density_kg_m3": 1000.0,
-                "viscosity_pa_s": args.viscosity if args.viscosity is not None else 0.1,
-                "viscosity_model": "newtonian"}
-    return scene, run, material
+def _defaults(_options) -> dict:
+    return {"run": {"scheme": "dfsph", "spacing_mm": 0.2, "gravity_m_s2": 0.0},
+            "material": {"name": "shear fluid", "density_kg_m3": 1000.0, "viscosity_pa_s": 0.1,
+                         "viscosity_model": "newtonian"}}
 
 
-register(SceneCLI("shear", "Stokes' first problem: a plate starts sliding under a viscous layer",
-                  _add_arguments, _build))
+register(SceneEntry("shear", "Stokes' first problem: a plate starts sliding under a viscous layer",
+                    ShearOptions, lambda o: ShearStartScene(**asdict(o)), _defaults))

@@ -15,12 +15,14 @@ References, our own:
 """
 
 import math
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from taichi_mex.physics.thermal import STEFAN_BOLTZMANN, diffusion_dt_s
 from taichi_mex.core.state import SOLID
-from taichi_mex.scenes import SceneCLI, register
+from taichi_mex.options import Flag, Positive, Range, opt
+from taichi_mex.scenes import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 #: paper values (Sec. "Validation of the Thermal Model")
@@ -106,7 +108,10 @@ class ThermalBeamScene:
     name = "thermal-beam"
 
     def __init__(self, width_mm: float = 20.0, length_mm: float = 200.0, until_s: float = 50.0,
-                 centerline_points: int = 201, reference_cells: tuple = (5, 100)):
+                 centerline_points: int = 201, reference_cells: tuple = (5, 100), losses: bool = True):
+        # losses: what the scene implies for the run's heat options (_defaults), kept here so
+        # that config.json names the case
+        self.options = ThermalBeamOptions(width_mm, length_mm, until_s, losses, centerline_points)
         self.width_m = width_mm * 1e-3
         self.length_m = length_mm * 1e-3
         self.until_s = float(until_s)
@@ -132,8 +137,8 @@ class ThermalBeamScene:
             blocks=[ParticleBlock(beam, SOLID, temperature_c=initial_temperature_c(beam[:, 2]))],
             needs={"thermal"},
             section_point_m=0.5 * (lo + hi), section_direction=np.array([0.0, 0.0, 1.0]),
-            notes={"max_dt_s": 1.0, "thermal_dt_s": dt, "speed_scale_m_s": 0.0,
-                   "beam_width_m": self.width_m, "beam_length_m": self.length_m},
+            max_dt_s=1.0, thermal_dt_s=dt, speed_scale_m_s=0.0,
+            info={"beam_width_m": self.width_m, "beam_length_m": self.length_m},
         )
 
     # ------------------------------------------------------------------ analysis
@@ -213,26 +218,30 @@ class ThermalBeamScene:
         plt.close(fig)
 
 
-def _add_arguments(p) -> None:
-    p.add_argument("--no-losses", action="store_true",
-                   help="conduction only (case a); default: the paper's convection and radiation (case b)")
-    p.add_argument("--until", type=float, default=50.0, help="simulated time (s), default 50")
+@dataclass
+class ThermalBeamOptions:
+    width_mm: float = opt(20.0, help="beam width and depth (mm)", check=Positive())
+    length_mm: float = opt(200.0, help="beam length (mm)", check=Positive())
+    until_s: float = opt(50.0, help="simulated time (s)", check=Positive(), flag="--until",
+                         names=("until",))
+    losses: bool = opt(True, help="the paper's convection and radiation (case b); off: "
+                       "conduction only (case a)", check=Flag(), flag="--no-losses", const=False,
+                       flag_help="conduction only (case a)")
+    centerline_points: int = opt(201, help="points on the axis the error is taken at",
+                                 check=Range(2, 100000, integer=True))
 
 
-def _build(args):
-    scene = ThermalBeamScene(until_s=args.until)
+def _defaults(options) -> dict:
     thermal = {"enabled": True}
-    if args.no_losses:
-        thermal.update(convection_w_m2k=0.0, radiation_emissivity=None)
+    if options.losses:
+        thermal.update(PAPER_LOSSES)
     else:
-        thermal.update({k: v for k, v in PAPER_LOSSES.items()})
-        for arg, key in (("convection", "convection_w_m2k"), ("radiation", "radiation_emissivity"),
-                         ("ambient", "ambient_c")):
-            if getattr(args, arg, None) is not None:
-                thermal[key] = getattr(args, arg)
-    run = {"scheme": "static", "spacing_mm": 2.0, "thermal": thermal, "snapshot_field": "temperature"}
-    return scene, run, dict(ALUMINIUM)
+        thermal.update(convection_w_m2k=0.0, radiation_emissivity=None)
+    return {"run": {"scheme": "static", "spacing_mm": 2.0, "thermal": thermal,
+                    "snapshot_field": "temperature"},
+            "material": dict(ALUMINIUM)}
 
 
-register(SceneCLI("thermal-beam", "the seed paper's aluminium beam: heat conduction and surface "
-                  "losses against an analytic / finite-volume reference", _add_arguments, _build))
+register(SceneEntry("thermal-beam", "the seed paper's aluminium beam: heat conduction and surface "
+                    "losses against an analytic / finite-volume reference", ThermalBeamOptions,
+                    lambda o: ThermalBeamScene(**asdict(o)), _defaults))

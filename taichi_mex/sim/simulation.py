@@ -9,6 +9,7 @@
 """
 
 import json
+import logging
 import os
 import time
 from pathlib import Path
@@ -19,6 +20,8 @@ from taichi_mex import backend
 from taichi_mex.options import Material, RunOptions, to_dict
 from taichi_mex.errors import SimulationDiverged, UserInputError
 from taichi_mex.core.state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
+
+log = logging.getLogger("taichi_mex")
 
 #: bytes per particle besides the registered fields: neighbour lists, sort buffers
 _TEMP_FACTOR = 2.0
@@ -47,8 +50,16 @@ def available_memory_bytes() -> int:
 
 
 class Simulation:
+    @classmethod
+    def from_spec(cls, spec, out_dir=None) -> "Simulation":
+        """The run a :class:`~taichi_mex.spec.RunSpec` describes (the way every entry point
+        builds one)."""
+        spec.validate()
+        return cls(spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset)
+
     def __init__(self, scene, run: RunOptions | None = None, material: Material | None = None,
-                 out_dir=None):
+                 out_dir=None, preset: str | None = None):
+        self.preset = preset
         self.run_opts = run or RunOptions()
         self.material = material or Material()
         self.run_opts.validate()
@@ -56,7 +67,7 @@ class Simulation:
         self.scene = scene
         self.plan = scene.plan(self.run_opts, self.material)
         self.creeping = self._creeping_numbers()
-        self.plan.notes["viscosity_scale"] = self.creeping["viscosity_scale"]
+        self.viscosity_scale = self.creeping["viscosity_scale"]
         self.out_dir = Path(out_dir) if out_dir else None
         self._pairing = None
         self.estimate = self._estimate()
@@ -77,7 +88,6 @@ class Simulation:
                 f"{self.estimate['simulated_time_s']:.3g} s. That is days of computing; {advice} "
                 f"(or raise RunOptions.max_steps, now {self.run_opts.max_steps:,}).")
         self._built = False
-        self.snapshot_every_s = None
         self.time_s = self.plan.t_start_s
         self.steps = 0
         self.history: list[dict] = []
@@ -90,14 +100,14 @@ class Simulation:
 
         All three fall as 1/eta: scaling the viscosity by s keeps the flow creeping while
         every number stays below the limit, and leaves bead shapes set by the nozzle."""
-        notes = self.plan.notes
+        scales = self.plan.creeping
         run = self.run_opts
         eta = self.material.zero_shear_viscosity(self.material.extrusion_temperature_c)
         rho, g = self.material.density_kg_m3, run.gravity_m_s2
-        if "creeping_speed_m_s" not in notes or eta <= 0:
+        if scales is None or eta <= 0:
             scale = 1.0 if run.viscosity_scale == "auto" else float(run.viscosity_scale)
             return {"viscosity_scale": scale}
-        U, L, T = notes["creeping_speed_m_s"], notes["creeping_length_m"], notes["creeping_duration_s"]
+        U, L, T = scales.speed_m_s, scales.length_m, scales.duration_s
         raw = {"reynolds": rho * U * L / eta, "gravity_number": rho * g * L * L / (eta * U),
                "gravity_slump": rho * g * L * T / eta}
         if run.viscosity_scale == "auto":
@@ -182,8 +192,8 @@ class Simulation:
     def _dt_guess(self, H: float) -> tuple[float, dict]:
         """Expected time step and its limits (s), from the scene's speed scale."""
         run = self.run_opts
-        v = self.plan.notes.get("speed_scale_m_s", 0.1)
-        scale = self.plan.notes.get("viscosity_scale", 1.0)
+        v = self.plan.speed_scale_m_s
+        scale = self.viscosity_scale
         nu = self.material.zero_shear_viscosity(self.material.extrusion_temperature_c) * scale \
             / self.material.density_kg_m3
         if run.scheme == "edac":
@@ -192,9 +202,9 @@ class Simulation:
             if nu > 0:
                 limits["viscous"] = 0.125 * h * h / nu
         elif run.scheme == "static":
-            limits = {"max": self.plan.notes.get("max_dt_s", 1.0)}
-            if "thermal_dt_s" in self.plan.notes:
-                limits["thermal"] = self.plan.notes["thermal_dt_s"]
+            limits = {"max": self.plan.max_dt_s or 1.0}
+            if self.plan.thermal_dt_s is not None:
+                limits["thermal"] = self.plan.thermal_dt_s
         else:
             limits = {"cfl": min(run.dfsph.cfl * 0.4 * run.spacing_m / max(v, 1e-9), run.dfsph.max_dt_s)}
         return min(limits.values()), limits
@@ -247,7 +257,7 @@ class Simulation:
                                                  self.material.no_flow_temperature_c)
         self.viscosity = MeltViscosity(self.state, self.material,
                                        self.thermal.T if self.thermal else None,
-                                       scale=self.plan.notes.get("viscosity_scale", 1.0))
+                                       scale=self.viscosity_scale)
         skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0) * self.kernel.H
         self.grid = NeighbourGrid(self.state, self.plan.domain_lo_m, self.plan.domain_hi_m,
                                   self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
@@ -343,16 +353,17 @@ class Simulation:
                 "the CFL factor or raise the iteration limits.")
 
     # ----------------------------------------------------------------- running
-    def run(self, until_s: float | None = None, progress: bool | None = None) -> dict:
+    def run(self, until_s: float | None = None, reporter=None) -> dict:
         """Advance to ``until_s`` (default: the scene's end) and return the summary dict.
 
+        ``reporter``: an object with ``update(t_s, dt_s, particles)`` and ``close()`` that is
+        told about every step (the command line's progress bar); the library prints nothing.
         Ctrl-C stops after the current step; every frame written so far stays valid and the
         summary says ``"interrupted": true``.
         """
         self.build()
         run = self.run_opts
         t_end = self.plan.t_end_s if until_s is None else min(until_s, self.plan.t_end_s)
-        progress = run.progress if progress is None else progress
         span = max(t_end - self.plan.t_start_s, 1e-12)
         every = run.output_every_s or span / 10.0
         self.lost_particles = 0
@@ -360,14 +371,14 @@ class Simulation:
         writer = self._open_writer()
         t = self.time_s
         next_out = t
-        next_snap = t + self.snapshot_every_s if self.snapshot_every_s else np.inf
+        snap_every = run.snapshot_every_s
+        next_snap = t + snap_every if snap_every else np.inf
         interrupted = False
         error = None
-        bar = _progress_bar(progress, span, t)
         wall0 = time.perf_counter()
         particle_steps = 0
         dt_limits = {}
-        speed_limit = run.max_speed_m_s or max(1.0, 20.0 * self.plan.notes.get("speed_scale_m_s", 0.1))
+        speed_limit = run.max_speed_m_s or max(1.0, 20.0 * self.plan.speed_scale_m_s)
         monitor = getattr(self.scene, "monitor", None)
         self.solver.start(t)
         try:
@@ -377,7 +388,7 @@ class Simulation:
                     next_out += every
                 if writer is not None and t >= next_snap - 1e-12:
                     self.snapshots_or_warn(f"t{t:.5f}s")
-                    next_snap += self.snapshot_every_s
+                    next_snap += snap_every
                 if t >= t_end - 1e-12:
                     break
                 dt, dt_limits = self.solver.time_step()
@@ -399,18 +410,15 @@ class Simulation:
                 if speed > speed_limit:
                     self.diverged(t, f"the fastest melt particle moves at {speed:.3g} m/s "
                                      f"(limit {speed_limit:.3g} m/s)")
-                if bar is not None:
-                    # float sums of dt overshoot the total by an ulp: tqdm then warns
-                    bar.update(min(dt, max(bar.total - bar.n, 0.0)))
-                    if self.steps % 50 == 0:
-                        bar.set_postfix(particles=self.state.n, dt=f"{dt:.2e}", refresh=False)
+                if reporter is not None:
+                    reporter.update(t, dt, self.state.n)
         except KeyboardInterrupt:
             interrupted = True
         except SimulationDiverged as exc:
             error = exc
         finally:
-            if bar is not None:
-                bar.close()
+            if reporter is not None:
+                reporter.close()
         wall = time.perf_counter() - wall0
         if writer is not None and interrupted:
             self._write_frame(writer, t)
@@ -434,7 +442,7 @@ class Simulation:
         sec = self.plan.section_point_m
         direction = self.plan.section_direction
         return {"scene": self.plan.name, "run": to_dict(self.run_opts), "material": to_dict(self.material),
-                "notes": self.plan.notes, "arch": getattr(self, "arch_used", None),
+                "info": self.plan.info, "arch": getattr(self, "arch_used", None),
                 "spacing_m": self.run_opts.spacing_m,
                 "section_point_m": None if sec is None else [float(v) for v in sec],
                 "section_direction": None if direction is None else [float(v) for v in direction]}
@@ -453,9 +461,16 @@ class Simulation:
             data[name] = self.state.numpy(name)[keep]
         return data
 
+    def description(self):
+        """The run description that re-creates this run (written as config.json)."""
+        from taichi_mex.spec import RunSpec
+
+        return RunSpec(self.scene.name, self.scene.options, self.run_opts, self.material, self.preset)
+
     def _open_writer(self):
         if self.out_dir is None:
             return None
+        self.description().write(self.out_dir)
         from taichi_mex.post.output import FrameWriter
 
         writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields())
@@ -486,7 +501,7 @@ class Simulation:
         try:
             self.snapshots(tag)
         except Exception as exc:  # noqa: BLE001 - VTK raises assorted errors without a display
-            print(f"warning: snapshots '{tag}' skipped: {exc}")
+            log.warning("snapshots '%s' skipped: %s", tag, exc)
 
     def snapshots(self, tag: str, field: str | None = None) -> list:
         from taichi_mex.post.render import snapshot_set
@@ -585,12 +600,3 @@ def _fit_step(dt: float, remaining: float) -> float:
         return remaining
     steps = np.ceil(remaining / dt - 1e-9)
     return remaining / steps if steps <= 3 else dt
-
-
-def _progress_bar(enabled: bool, span: float, t0: float):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=span, unit="sim-s", unit_scale=False, dynamic_ncols=True,
-                bar_format="{l_bar}{bar}| {n:.4g}/{total:.4g} sim-s [{elapsed}<{remaining}{postfix}]")

@@ -93,7 +93,7 @@ class DFSPHSolver:
         rho0 = sim.material.density_kg_m3
         self.fluid = FluidIndex(sim.state)
         self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m,
-                           sim.viscosity, sim.plan.notes.get("speed_scale_m_s", 0.0))
+                           sim.viscosity, sim.plan.speed_scale_m_s)
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
@@ -124,7 +124,7 @@ class DFSPHSolver:
         o = self.opts
         speed = max(self.vmax, self.sim.boundary_speed(), 1e-6)
         # a scene of slow creeping flow may allow longer steps than a print
-        max_dt = self.sim.plan.notes.get("max_dt_s", o.max_dt_s)
+        max_dt = self.sim.plan.max_dt_s or o.max_dt_s
         limits = {"cfl": o.cfl * 0.4 * self.sim.run_opts.spacing_m / speed, "max": max_dt}
         limits.update(self.sim.extra_dt_limits())
         return min(limits.values()), limits
@@ -269,7 +269,7 @@ class StaticSolver:
 
     def time_step(self) -> tuple[float, dict]:
         limits = dict(self.sim.extra_dt_limits())
-        limits.setdefault("max", self.sim.plan.notes.get("max_dt_s", 1.0))
+        limits.setdefault("max", self.sim.plan.max_dt_s or 1.0)
         return min(limits.values()), limits
 
     def step(self, t: float, dt: float) -> float:
