@@ -1,4 +1,4 @@
-"""The Python API in a few lines: simulate a G-code print and look at the particles.
+"""The Python API in a few lines: describe a run, simulate it, look at the particles.
 
     python examples/api_print.py [OUT_DIR]
 """
@@ -7,17 +7,15 @@ import sys
 
 import numpy as np
 
-from taichi_mex import Material, RunOptions, Simulation, bundled
-from taichi_mex.scenes.print import PrintScene
+from taichi_mex import RunSpec, Simulation
 from taichi_mex.core.state import FLUID
 
 out = sys.argv[1] if len(sys.argv) > 1 else "api_print_out"
 
-# the seed paper's baseline on its single bead, stopped early to keep the example short
-scene = PrintScene(bundled.gcode_path("paper_bead"), until_s=0.36, nozzle_height="one_diameter",
-                   nozzle_tip_outer_diameter_mm=None)
-run = RunOptions(scheme="edac", spacing_mm=0.1, progress=True)
-sim = Simulation(scene, run, Material(viscosity_pa_s=0.1), out_dir=out)
+# the seed paper's baseline on its single bead, stopped early to keep the example short;
+# changes are dotted paths (scene.*, run.*, material.*) or the flat names sweeps use
+spec = RunSpec.create("print", preset="paper", changes={"scene.until_s": 0.36, "run.spacing_mm": 0.1})
+sim = Simulation.from_spec(spec, out_dir=out)   # writes OUT_DIR/config.json when it runs
 print(sim.describe_estimate())
 summary = sim.run()
 
@@ -26,3 +24,4 @@ rho = sim.state.numpy("density", FLUID)
 print(f"{len(xyz)} melt particles, bead height {1e3 * np.ptp(xyz[:, 2]):.3f} mm, "
       f"density {rho.min():.0f}..{rho.max():.0f} kg/m^3")
 print(f"deposited {summary['deposited_volume_mm3']:.4f} of {summary['commanded_volume_mm3']:.4f} mm^3")
+print(f"re-run it with: python -m taichi_mex --config {out}/config.json --out {out}_again")

@@ -42,5 +42,5 @@ def resolve_gcode(value, base_dir=None) -> Path:
         return path.resolve()
     if "/" not in text and plain in names:
         return gcode_path(plain)
-    raise UserInputError(f"G-code '{text}' is neither a file ({path}) nor a bundled name "
-                         f"({', '.join(n.removesuffix('.gcode') for n in names)}).")
+    raise UserInputError(f"G-code '{text}' is neither a file ({path} does not exist) nor a "
+                         f"bundled name ({', '.join(n.removesuffix('.gcode') for n in names)}).")

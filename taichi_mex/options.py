@@ -40,10 +40,12 @@ class Range(Check):
             return "must be a finite number"
         lo_bad = self.lo is not None and (value <= self.lo if self.lo_open else value < self.lo)
         hi_bad = self.hi is not None and (value >= self.hi if self.hi_open else value > self.hi)
+        if (lo_bad or hi_bad) and self.lo == 0 and self.hi is None:
+            return "must be positive" if self.lo_open else "must not be negative"
         if lo_bad or hi_bad:
             left = "-inf" if self.lo is None else f"{self.lo:g}"
             right = "inf" if self.hi is None else f"{self.hi:g}"
-            return (f"must lie in {'(' if self.lo_open or self.lo is None else '['}{left}, "
+            return (f"is outside {'(' if self.lo_open or self.lo is None else '['}{left}, "
                     f"{right}{')' if self.hi_open or self.hi is None else ']'}")
         return None
 

@@ -34,9 +34,12 @@ FORMAT_NAME = "taichi_mex run description"
 
 
 def scene_entries() -> dict:
-    from taichi_mex.scenes import load_all
+    """name -> SceneEntry of every scene (importing a scene module registers it)."""
+    from taichi_mex.scenes import (collapse, dam_break, hydrostatic, print,  # noqa: F401
+                                   shear, thermal_beam)
+    from taichi_mex.scenes.registry import SCENES
 
-    return load_all()
+    return SCENES
 
 
 def scene_entry(name: str):
@@ -76,6 +79,11 @@ def dotted_name(name: str, scene: str) -> str | None:
             table.setdefault(alias, path)
     for path, f in option_fields(scene_entry(scene).options, "scene."):
         table.setdefault(path.removeprefix("scene."), path)  # a scene's own options by name
+        for alias in f.metadata.get("names", ()):
+            table.setdefault("scene." + alias, path)
+    if name not in table and name.startswith("scene."):
+        # studies written before the run description reached run options as scene.OPTION
+        return table.get(name.removeprefix("scene."))
     return table.get(name)
 
 

@@ -146,7 +146,7 @@ def _fastest_melt_in_paper_block(tmp_path, **dfsph_attrs):
     finally:
         for k, v in saved.items():
             setattr(DFSPH, k, v)
-    return max(speeds), s, sim.plan.notes["speed_scale_m_s"]
+    return max(speeds), s, sim.plan.speed_scale_m_s
 
 
 def test_unscaled_block_travel_does_not_fling_melt(tmp_path):

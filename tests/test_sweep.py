@@ -121,15 +121,16 @@ def test_resolve_builds_options_and_refuses_bad_values(tmp_path):
     res = resolve({"preset": "paper", "spacing_mm": 0.12, "viscosity": 3.0, "sound_speed": 10,
                    "nozzle_temperature_c": 230, "feed_rate_factor": 1.5, "layers": 1,
                    "run.edac.cfl": 0.2})
-    assert res.run.scheme == "edac" and res.run.spacing_mm == 0.12 and res.run.edac.cfl == 0.2
-    assert res.run.edac.sound_speed_m_s == 10 and not res.run.thermal.enabled
-    assert res.material.viscosity_pa_s == 3.0 and res.material.extrusion_temperature_c == 230
-    assert res.gcode.name == "paper_bead.gcode" and res.feed_rate_factor == 1.5
-    assert res.scene_kwargs["nozzle_height"] == "one_diameter"
-    assert res.scene_kwargs["nozzle_tip_outer_diameter_mm"] is None
-    assert res.scene_kwargs["layers"] == [1]
+    run, material, options = res.spec.run, res.spec.material, res.spec.options
+    assert run.scheme == "edac" and run.spacing_mm == 0.12 and run.edac.cfl == 0.2
+    assert run.edac.sound_speed_m_s == 10 and not run.thermal.enabled
+    assert material.viscosity_pa_s == 3.0 and material.extrusion_temperature_c == 230
+    assert options.gcode.endswith("paper_bead.gcode") and res.feed_rate_factor == 1.5
+    assert options.nozzle_height == "one_diameter"
+    assert options.nozzle_tip_outer_diameter_mm is None
+    assert options.layers == 1
     gen = resolve({"layer_height_mm": 0.3, "speed_mm_s": 40})
-    assert gen.gcode is None and gen.generate["pattern"] == "bead"
+    assert gen.generate["pattern"] == "bead"
     for params, message in (({"spacing_mm": 500.0}, "outside"),
                             ({"plate_temperature_c": 60, "thermal": False}, "need heat"),
                             ({"gcode": "paper_bead", "speed_mm_s": 40}, "generated G-code"),
@@ -285,13 +286,12 @@ def test_example_studies_are_valid(example, tmp_path, capsys):
 def test_isolated_job_past_its_time_limit_is_recorded(tmp_path):
     from taichi_mex.app.jobs import run_job_isolated
 
-    t0 = time.perf_counter()
-    record = run_job_isolated({"gcode": "paper_bead", "preset": "paper", "spacing_mm": 0.12,
-                               "deposit_for_s": 0.008, "snapshots": False}, tmp_path / "run",
+    # tens of thousands of explicit steps: no machine finishes this inside the limit
+    record = run_job_isolated({"gcode": "paper_bead", "preset": "paper", "spacing_mm": 0.05,
+                               "deposit_for_s": 0.13, "snapshots": False}, tmp_path / "run",
                               timeout_s=3)
     assert record["status"] == "failed" and record["failure"] == "timeout"
     assert json.loads((tmp_path / "run" / "job.json").read_text())["failure"] == "timeout"
-    assert time.perf_counter() - t0 < 90
 
 
 def test_runs_keep_their_folders_when_the_study_grows(tmp_path):

@@ -115,7 +115,7 @@ class SlabOnPlate:
                          t_start_s=0.0, t_end_s=0.5,
                          blocks=[ParticleBlock(slab, SOLID, temperature_c=220.0),
                                  ParticleBlock(plate, PLATE)],
-                         needs={"thermal"}, notes={"max_dt_s": 1.0})
+                         speed_scale_m_s=0.0, needs={"thermal"}, max_dt_s=1.0)
 
 
 def test_plate_conducts_into_the_first_layer():

@@ -66,7 +66,7 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
     sim.build()
     t0 = sim.plan.t_start_s
     sim.plan.t_end_s = t0 + warm_s + measure_s
-    sim.run(until_s=t0 + warm_s, progress=False)
+    sim.run(until_s=t0 + warm_s)
     steps0 = sim.steps
     import time as _time
 
@@ -97,19 +97,18 @@ def bench_scene(sim, warm_s: float, measure_s: float) -> dict:
 
 def edac_block(target_particles: int = 100_000, arch: str = "cpu"):
     """A water-like column in a tank (EDAC, Wendland, h = 1.3 dx) of about N particles."""
-    from taichi_mex.options import EDACOptions, Material, RunOptions
-    from taichi_mex.scenes.hydrostatic import HydrostaticScene
     from taichi_mex.sim.simulation import Simulation
+    from taichi_mex.spec import RunSpec
 
     # fluid 1 x 1 x 2 aspect; walls add ~1/3
     n_fluid = target_particles / 1.5
     side = int(round((n_fluid / 2) ** (1 / 3)))
     dx_mm = 0.25
-    scene = HydrostaticScene(width_mm=side * dx_mm, height_mm=2 * side * dx_mm, until_s=1.0)
-    c = 10 * (2 * 9.81 * 2 * side * dx_mm * 1e-3) ** 0.5
-    run = RunOptions(scheme="edac", spacing_mm=dx_mm, edac=EDACOptions(sound_speed_m_s=c),
-                     snapshots=False, progress=False, arch=arch)
-    return Simulation(scene, run, Material(name="water-like", density_kg_m3=1000, viscosity_pa_s=1e-3))
+    spec = RunSpec.create("hydrostatic", changes={
+        "scene.width_mm": side * dx_mm, "scene.height_mm": 2 * side * dx_mm, "scene.until_s": 1.0,
+        "run.scheme": "edac", "run.spacing_mm": dx_mm, "run.snapshots": False,
+        "run.progress": False, "run.arch": arch, "material.viscosity_pa_s": 1e-3})
+    return Simulation.from_spec(spec)
 
 
 def print_table(rows: list[dict]) -> None:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import difflib
-import importlib.util
 import json
 import math
 import os
@@ -34,11 +33,12 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from taichi_mex import bundled
 from taichi_mex.errors import SimulationDiverged, UserInputError
+from taichi_mex.spec import RunSpec, dotted_name, scene_entry, spec_fields
 
 # --------------------------------------------------------------------------- parameters
 _NUM = (int, float)
@@ -51,31 +51,19 @@ class Param:
     group: str
 
 
-PARAMETERS: dict[str, Param] = {
-    # what is printed
-    "gcode": Param("G-code file: a path (relative to the study file) or a bundled name "
-                   "(" + ", ".join(n.removesuffix(".gcode") for n in bundled.bundled_names()) + ")",
-                   (str,), "print"),
+#: what a job does besides the run description: which scene, G-code rewrites and generation,
+#: when to stop relative to the deposition, the analysis. Every other parameter is an option
+#: of the run description (taichi_mex.spec), by its flat name or dotted path.
+JOB_PARAMETERS: dict[str, Param] = {
     "scene": Param("a built-in scene instead of a print ('python -m taichi_mex scene --help'); "
                    "its own options as scene.OPTION, e.g. scene.radius_mm", (str,), "print"),
-    "printer": Param("pyGCodeDecode printer preset or FILE.yaml[:NAME] (default prusa_mini)",
-                     (str,), "print"),
-    "layers": Param("layers to simulate, '2-3' or 2 (1-based; default all)", (str, int), "print"),
-    "region": Param("XY box 'XMIN:XMAX,YMIN:YMAX' in mm", (str,), "print"),
-    "until": Param("stop at this print time (s)", _NUM, "print"),
+    "preset": Param("named parameter set from options.PRESETS (e.g. 'paper')", (str,), "run"),
     "deposit_for_s": Param("stop this long (s) after the selected deposition starts (instead of "
                            "'until'; follows the start when the speed changes)", _NUM, "print"),
-    "settle": Param("simulate this long (s) after the last deposition", _NUM, "print"),
-    "nozzle_height": Param("'gcode' (the nozzle at the G-code's Z) or 'one_diameter' (the seed "
-                           "paper's)", (str,), "print"),
-    "nozzle_tip_outer_diameter_mm": Param("flat nozzle tip around the bore (mm), or false for none "
-                                          "(default 1.0)", _NUM + (bool,), "print"),
-    # G-code rewrites
     "feed_rate_factor": Param("multiply every feed rate F of the G-code (nozzle speed; the "
                               "printer's limits still apply)", _NUM, "gcode"),
     "flow_factor": Param("multiply every extrusion E of the G-code (over/under-extrusion)", _NUM,
                          "gcode"),
-    # generated G-code (taichi_mex.toolpath.generate)
     "pattern": Param("generate the G-code: 'bead' (one bead) or 'block' (block_layers x "
                      "block_beads parallel beads); default 'bead' when a parameter below is set",
                      (str,), "generate"),
@@ -85,66 +73,30 @@ PARAMETERS: dict[str, Param] = {
     "bead_length_mm": Param("generated G-code: bead length (mm, default 3)", _NUM, "generate"),
     "block_beads": Param("generated block: beads per layer (default 3)", (int,), "generate"),
     "block_layers": Param("generated block: layers (default 3)", (int,), "generate"),
-    # discretisation and solver
-    "preset": Param("named parameter set from config.PRESETS (e.g. 'paper')", (str,), "run"),
-    "resolution": Param("particle spacing in mm, or a named resolution preset when "
-                        "config.RESOLUTION_PRESETS exists", _NUM + (str,), "run"),
-    "spacing_mm": Param("particle spacing (mm)", _NUM, "run"),
-    "scheme": Param("pressure scheme: edac, dfsph, static", (str,), "run"),
-    "sound_speed": Param("EDAC artificial sound speed (m/s)", _NUM, "run"),
-    "dt_factor": Param("multiply the stable time step (> 1 only to probe stability)", _NUM, "run"),
-    "precision": Param("f32 or f64", (str,), "run"),
-    "arch": Param("cpu or gpu", (str,), "run"),
-    "cpu_threads": Param("CPU threads of this run (default: the worker's share of the cores)",
-                         (int,), "run"),
-    "output_every": Param("write an HDF5 frame every this many simulated seconds", _NUM, "run"),
-    "snapshots": Param("write PNG snapshots (default true)", (bool,), "run"),
-    "analysis": Param("take bead metrics from mesostructure.json, running taichi_mex.post.analysis "
+    "analysis": Param("take bead metrics from mesostructure.json, running the analysis "
                       "when the scene did not (default true)", (bool,), "run"),
-    # melt
-    "viscosity": Param("melt viscosity (Pa s): Newtonian unless viscosity_model says otherwise, "
-                       "then the model's reference value", _NUM, "material"),
-    "viscosity_model": Param("newtonian, arrhenius or cross_wlf", (str,), "material"),
-    "nozzle_temperature_c": Param("melt temperature at the nozzle (degC): sets temperature-"
-                                  "dependent viscosity, and the inlet temperature with heat on",
-                                  _NUM, "material"),
-    # heat (any of these switches heat on)
-    "thermal": Param("simulate temperature (default false; true when a heat parameter is set)",
-                     (bool,), "heat"),
-    "plate_temperature_c": Param("build plate temperature (degC); switches heat on", _NUM, "heat"),
-    "ambient_c": Param("ambient temperature (degC); switches heat on", _NUM, "heat"),
-    "convection_w_m2k": Param("convective heat transfer coefficient (W/m^2/K); switches heat on",
-                              _NUM, "heat"),
-    "radiation_emissivity": Param("radiate with this emissivity; switches heat on", _NUM, "heat"),
 }
-
-_OPTIONAL_RUN_FIELDS = {
-    "viscosity_scale": Param("creeping-flow scaling of the viscosity: a factor in (0, 1], 'auto' "
-                             "or 'off'", _NUM + (str,), "run"),
-}
-
-#: dotted prefixes and the options object they reach
-_DOTTED = ("run.", "material.", "scene.")
-_HEAT_PARAMS = ("plate_temperature_c", "ambient_c", "convection_w_m2k", "radiation_emissivity")
 _GENERATE_DEFAULTS = {"pattern": "bead", "layer_height_mm": 0.2, "line_width_mm": 0.45,
                       "speed_mm_s": 60.0, "bead_length_mm": 3.0, "block_beads": 3,
                       "block_layers": 3}
+_PRINT_ONLY = ("deposit_for_s", "feed_rate_factor", "flow_factor", *_GENERATE_DEFAULTS)
 
 
 def parameters() -> dict[str, Param]:
-    """The named parameters this version understands (optional ones only when present)."""
-    from taichi_mex.options import RunOptions
-
-    out = dict(PARAMETERS)
-    names = {f.name for f in fields(RunOptions)}
-    out.update({k: v for k, v in _OPTIONAL_RUN_FIELDS.items() if k in names})
+    """The flat names a study may use: the job's own, then every option's declared names."""
+    out = dict(JOB_PARAMETERS)
+    groups = {"scene.": "print", "run.thermal.": "heat", "run.": "run", "material.": "material"}
+    for path, f in spec_fields("print"):
+        for name in f.metadata.get("names", ()):
+            group = next(g for prefix, g in groups.items() if path.startswith(prefix))
+            out.setdefault(name, Param(f"{f.metadata['help']} [{path}]", (), group))
     return out
 
 
 def describe_parameters() -> str:
     groups = {"print": "what is printed", "gcode": "G-code rewrites",
               "generate": "generated G-code", "run": "discretisation and solver",
-              "material": "melt", "heat": "heat"}
+              "material": "melt", "heat": "heat (any of these switches heat on)"}
     lines = []
     table = parameters()
     for group, title in groups.items():
@@ -153,103 +105,63 @@ def describe_parameters() -> str:
             if p.group == group:
                 lines.append(f"  {name:30s} {p.help}")
     lines.append("any other option: run.FIELD, run.edac.FIELD, run.dfsph.FIELD, run.thermal.FIELD, "
-                 "material.FIELD (see taichi_mex/config.py), scene.OPTION for a built-in scene")
+                 "material.FIELD (see taichi_mex/options.py), scene.OPTION for a scene's own options")
     return "\n".join(lines)
-
-
-def _dataclass_fields(obj) -> dict:
-    return {f.name: f for f in fields(obj)}
-
-
-def _check_dotted(name: str, scene_options: set | None) -> str | None:
-    """None when a dotted name reaches an existing option, else the reason."""
-    from taichi_mex.options import Material, RunOptions
-
-    prefix, _, rest = name.partition(".")
-    if not rest:
-        return "it names no option after the dot"
-    if prefix == "scene":
-        if scene_options is None:
-            return "scene.OPTION needs 'scene = NAME'"
-        if rest not in scene_options:
-            close = difflib.get_close_matches(rest, scene_options, 1)
-            return ("the scene has no option '" + rest + "'"
-                    + (f" (did you mean scene.{close[0]}?)" if close else "")
-                    + f"; it has {', '.join(sorted(scene_options))}")
-        return None
-    obj = RunOptions() if prefix == "run" else Material()
-    parts = rest.split(".")
-    for i, part in enumerate(parts):
-        names = _dataclass_fields(obj)
-        if part not in names:
-            close = difflib.get_close_matches(part, names, 1)
-            where = ".".join([prefix] + parts[:i])
-            return (f"{where} has no field '{part}'"
-                    + (f" (did you mean {where}.{close[0]}?)" if close else ""))
-        value = getattr(obj, part)
-        if i < len(parts) - 1:
-            if not hasattr(value, "__dataclass_fields__"):
-                return f"{prefix}.{'.'.join(parts[:i + 1])} is not a group of options"
-            obj = value
-        elif hasattr(value, "__dataclass_fields__"):
-            return f"{name} is a group of options; name one of its fields"
-    return None
-
-
-def scene_option_names(scene: str) -> set:
-    """Option names (argparse dests) of a built-in scene, besides the run options."""
-    spec = _scene_spec(scene)
-    parser = _scene_parser(spec, with_run_options=False)
-    return {a.dest for a in parser._actions if a.dest not in ("help",)}
 
 
 def check_names(params: dict) -> None:
     """Refuse unknown parameter names (UserInputError naming each, with a suggestion)."""
-    table = parameters()
-    scene_options = None
-    if isinstance(params.get("scene"), str):
-        scene_options = scene_option_names(params["scene"])
+    scene = params.get("scene", "print")
+    if not isinstance(scene, str):
+        raise UserInputError(f"Parameter scene = {scene!r} should be a scene name.")
+    scene_entry(scene)
     problems = []
     for name in params:
-        if name in table:
+        if name in JOB_PARAMETERS or dotted_name(name, scene) is not None:
             continue
-        if name.startswith(_DOTTED):
-            reason = _check_dotted(name, scene_options)
-            if reason:
-                problems.append(f"'{name}': {reason}")
-            continue
-        close = difflib.get_close_matches(name, list(table), 1)
-        problems.append(f"'{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""))
+        problems.append(_name_problem(name, scene))
     if problems:
         raise UserInputError("Unknown parameter " + "; ".join(problems) + ". 'python -m "
                              "taichi_mex sweep --list-params' lists the names.")
 
 
+def _name_problem(name: str, scene: str) -> str:
+    prefix, _, rest = name.partition(".")
+    if prefix in ("run", "material", "scene") and rest:
+        paths = [p for p, _ in spec_fields(scene)]
+        groups = {p.rsplit(".", 1)[0] for p in paths if p.count(".") > 1}
+        if name in groups:
+            return f"'{name}': {name} is a group of options; name one of its fields"
+        parent = name.rsplit(".", 1)[0]
+        siblings = [p for p in paths if p.rsplit(".", 1)[0] == parent]
+        close = difflib.get_close_matches(name, siblings, 1, cutoff=0.5)
+        return (f"'{name}': no such option" + (f" (did you mean {close[0]}?)" if close else "")
+                + (f"; {parent} has {', '.join(s.rsplit('.', 1)[1] for s in siblings)}"
+                   if siblings else ""))
+    names = list(JOB_PARAMETERS) + [n for _, f in spec_fields(scene) for n in f.metadata.get("names", ())]
+    close = difflib.get_close_matches(name, names, 1)
+    return f"'{name}'" + (f" (did you mean '{close[0]}'?)" if close else "")
+
+
 # --------------------------------------------------------------------------- resolving
 @dataclass
 class Resolved:
-    """A parameter dict turned into options, before any file is written or planned."""
+    """A parameter dict turned into a run description and the job's own steps, before any
+    file is written or planned."""
 
     params: dict
-    run: object
-    material: object
-    #: 'print' or a built-in scene name
-    scene: str = "print"
-    #: print: the source G-code (None: generated), rewrite factors, scene keywords
-    gcode: Path | None = None
+    spec: RunSpec
+    #: generated G-code parameters (None: the description's G-code file)
     generate: dict | None = None
     feed_rate_factor: float = 1.0
     flow_factor: float = 1.0
-    scene_kwargs: dict = field(default_factory=dict)
     deposit_for_s: float | None = None
-    scene_overrides: dict = field(default_factory=dict)
     analysis: bool = True
 
 
-def _check_types(params: dict) -> None:
-    table = parameters()
+def _check_job_types(params: dict) -> None:
     for name, value in params.items():
-        p = table.get(name)
+        p = JOB_PARAMETERS.get(name)
         if p is None:
             continue
         ok = isinstance(value, p.types) and not (isinstance(value, bool) and bool not in p.types)
@@ -260,159 +172,64 @@ def _check_types(params: dict) -> None:
                      "float": "a number", "str": "text", "bool": "true or false"}
             kinds = " or ".join(dict.fromkeys(words[t.__name__] for t in p.types))
             raise UserInputError(f"Parameter {name} = {value!r} should be {kinds}.")
+        if p.types == _NUM and not value > 0:
+            raise UserInputError(f"Parameter {name} must be positive, got {value!r}.")
 
 
-def _positive(params: dict, name: str) -> None:
-    if name in params and not params[name] > 0:
-        raise UserInputError(f"Parameter {name} must be positive, got {params[name]!r}.")
-
-
-def resolve_gcode_name(value: str, base_dir=None) -> Path:
-    """A path (relative to ``base_dir``) or a bundled name -> an existing file."""
-    names = bundled.bundled_names()
-    plain = value if value.endswith(".gcode") else value + ".gcode"
-    path = Path(value).expanduser()
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
-    if path.is_file():
-        return path.resolve()
-    if "/" not in value and plain in names:
-        return bundled.gcode_path(plain)
-    raise UserInputError(f"G-code '{value}' is neither a file ({path}) nor a bundled name "
-                         f"({', '.join(n.removesuffix('.gcode') for n in names)}).")
-
-
-def _nested(dotted: dict) -> dict:
-    """{'edac.cfl': 0.2, 'scheme': 'x'} -> {'edac': {'cfl': 0.2}, 'scheme': 'x'}."""
-    out: dict = {}
-    for key, value in dotted.items():
-        node = out
-        parts = key.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = value
+def _heat_switches(scene: str) -> set:
+    """Flat names and paths of options that switch heat on."""
+    out = set()
+    for path, f in spec_fields(scene):
+        if f.metadata.get("implies", {}).get("run.thermal.enabled"):
+            out.add(path)
+            out.update(f.metadata.get("names", ()))
     return out
 
 
 def resolve(params: dict, base_dir=None) -> Resolved:
-    """Options, scene choice and G-code source for one run; refuses unknown names and bad
+    """The run description and the job's own steps for one run; refuses unknown names and bad
     values with UserInputError (nothing is written, nothing is planned)."""
-    from taichi_mex import options as config
-    from taichi_mex.options import PRESETS, Material, RunOptions, apply_overrides
-
     check_names(params)
-    _check_types(params)
-    for name in ("until", "deposit_for_s", "spacing_mm", "sound_speed", "viscosity",
-                 "feed_rate_factor", "flow_factor", "output_every", "cpu_threads"):
-        _positive(params, name)
-    if "settle" in params and params["settle"] < 0:
-        raise UserInputError(f"Parameter settle must be >= 0, got {params['settle']!r}.")
+    _check_job_types(params)
+    scene = params.get("scene", "print")
+    paths = {name: dotted_name(name, scene) for name in params if name not in JOB_PARAMETERS}
+    given = {}
+    for name, path in paths.items():
+        if path in given:
+            raise UserInputError(f"Give either {given[path]} or {name}, not both (both set {path}).")
+        given[path] = name
     if "until" in params and "deposit_for_s" in params:
         raise UserInputError("Give either until (a print time) or deposit_for_s (time after the "
                              "deposition starts), not both.")
-    if "spacing_mm" in params and "resolution" in params:
-        raise UserInputError("Give either spacing_mm or resolution, not both.")
-
-    run = RunOptions(progress=False)
-    material = Material()
-    preset = {}
-    if "preset" in params:
-        if params["preset"] not in PRESETS:
-            raise UserInputError(f"Unknown preset '{params['preset']}'; choose "
-                                 f"{', '.join(sorted(PRESETS))}.")
-        preset = PRESETS[params["preset"]]
-        run = apply_overrides(run, preset.get("run", {}))
-        material = apply_overrides(material, preset.get("material", {}))
-    if "resolution" in params:
-        run = _apply_resolution(run, params["resolution"], getattr(config, "RESOLUTION_PRESETS", None))
-
-    changes: dict = {}
-    for name, key in (("scheme", "scheme"), ("spacing_mm", "spacing_mm"), ("dt_factor", "dt_factor"),
-                      ("precision", "precision"), ("arch", "arch"), ("cpu_threads", "cpu_threads"),
-                      ("output_every", "output_every_s"), ("snapshots", "snapshots")):
-        if name in params:
-            changes[key] = params[name]
-    if "sound_speed" in params:
-        changes["edac"] = {"sound_speed_m_s": float(params["sound_speed"])}
-    if "viscosity_scale" in params:
-        changes["viscosity_scale"] = _viscosity_scale(params["viscosity_scale"])
-    heat = {key: params[key] for key in _HEAT_PARAMS if key in params}
-    if heat and params.get("thermal") is False:
+    heat = sorted(n for n in params if n in _heat_switches(scene))
+    if heat and params.get("thermal", params.get("run.thermal.enabled")) is False:
         raise UserInputError(f"{', '.join(heat)} need heat, but the run sets thermal = false.")
-    thermal = {"enabled": True} if heat or params.get("thermal") else {}
-    for key, target in (("plate_temperature_c", "plate_temperature_c"), ("ambient_c", "ambient_c"),
-                        ("convection_w_m2k", "convection_w_m2k"),
-                        ("radiation_emissivity", "radiation_emissivity")):
-        if key in heat:
-            thermal[target] = heat[key]
-    if thermal:
-        changes["thermal"] = thermal
-    run = apply_overrides(run, changes)
-
-    mat: dict = {}
-    if "viscosity" in params:
-        mat["viscosity_pa_s"] = float(params["viscosity"])
-        mat["viscosity_model"] = "newtonian"
-    if "viscosity_model" in params:
-        mat["viscosity_model"] = params["viscosity_model"]
-    if "nozzle_temperature_c" in params:
-        mat["extrusion_temperature_c"] = float(params["nozzle_temperature_c"])
-    material = apply_overrides(material, mat)
-
-    run_dotted = {k[4:]: v for k, v in params.items() if k.startswith("run.")}
-    mat_dotted = {k[9:]: v for k, v in params.items() if k.startswith("material.")}
-    run = apply_overrides(run, _nested(run_dotted))
-    material = apply_overrides(material, _nested(mat_dotted))
-    run.validate()
-    material.validate()
-    if run.thermal.enabled and importlib.util.find_spec("taichi_mex.physics.thermal") is None:
-        raise UserInputError("Heat was asked for, but this taichi_mex has no heat model "
-                             "(taichi_mex.physics.thermal).")
-
-    res = Resolved(params=params, run=run, material=material,
-                   analysis=params.get("analysis", True))
-    if "scene" in params:
-        return _resolve_scene(res, params)
-
+    if scene != "print":
+        for name in _PRINT_ONLY:
+            if name in params:
+                raise UserInputError(f"{name} applies to prints; scene '{scene}' takes "
+                                     f"scene.OPTION instead (e.g. scene.until).")
+    changes = {paths[n]: v for n, v in params.items() if n not in JOB_PARAMETERS}
     generate = {k: params[k] for k in _GENERATE_DEFAULTS if k in params}
-    if generate and "gcode" in params:
-        raise UserInputError(f"{', '.join(generate)} describe a generated G-code; drop them or "
-                             f"drop gcode = {params['gcode']!r}.")
+    if scene == "print":
+        if generate and "scene.gcode" in changes:
+            raise UserInputError(f"{', '.join(generate)} describe a generated G-code; drop them or "
+                                 f"drop gcode = {params.get('gcode')!r}.")
+        if "scene.gcode" in changes:
+            changes["scene.gcode"] = str(bundled.resolve_gcode(changes["scene.gcode"], base_dir))
+        if "scene.printer" in changes:
+            changes["scene.printer"] = _printer_path(changes["scene.printer"], base_dir)
+    changes.setdefault("run.progress", False)
+    spec = RunSpec.create(scene, params.get("preset"), changes)
+    res = Resolved(params=params, spec=spec, analysis=params.get("analysis", True),
+                   feed_rate_factor=float(params.get("feed_rate_factor", 1.0)),
+                   flow_factor=float(params.get("flow_factor", 1.0)),
+                   deposit_for_s=float(params["deposit_for_s"]) if "deposit_for_s" in params else None)
     if generate:
         from taichi_mex.toolpath.generate import check_pattern
 
         res.generate = {**_GENERATE_DEFAULTS, **generate}
-        check_pattern(**_pattern_kwargs(res.generate, _printer_path(params.get("printer", "prusa_mini"),
-                                                                    base_dir)))
-    else:
-        name = params.get("gcode", preset.get("gcode", bundled.DEFAULT_GCODE))
-        res.gcode = resolve_gcode_name(name, base_dir)
-    res.feed_rate_factor = float(params.get("feed_rate_factor", 1.0))
-    res.flow_factor = float(params.get("flow_factor", 1.0))
-
-    from taichi_mex.toolpath.trajectory import parse_layers, parse_region
-
-    kw: dict = {"printer": _printer_path(params.get("printer", "prusa_mini"), base_dir),
-                "layers": parse_layers(params["layers"]) if "layers" in params else None,
-                "region_mm": parse_region(params["region"]) if "region" in params else None,
-                "until_s": float(params["until"]) if "until" in params else None,
-                "settle_s": float(params.get("settle", 0.0))}
-    if preset.get("nozzle_height") == "one_diameter":
-        kw["nozzle_height"] = "one_diameter"
-    if preset.get("nozzle_tip") is False:
-        kw["nozzle_tip_outer_diameter_mm"] = None
-    if "nozzle_height" in params:
-        if params["nozzle_height"] not in ("gcode", "one_diameter"):
-            raise UserInputError(f"nozzle_height is 'gcode' or 'one_diameter', not "
-                                 f"{params['nozzle_height']!r}.")
-        kw["nozzle_height"] = params["nozzle_height"]
-    if "nozzle_tip_outer_diameter_mm" in params:
-        tip = params["nozzle_tip_outer_diameter_mm"]
-        if tip is True or (not isinstance(tip, bool) and not tip > 0):
-            raise UserInputError("nozzle_tip_outer_diameter_mm is a diameter in mm or false.")
-        kw["nozzle_tip_outer_diameter_mm"] = None if tip is False else float(tip)
-    res.scene_kwargs = kw
-    res.deposit_for_s = float(params["deposit_for_s"]) if "deposit_for_s" in params else None
+        check_pattern(**_pattern_kwargs(res.generate, spec.options.printer))
     return res
 
 
@@ -424,38 +241,6 @@ def _printer_path(spec: str, base_dir) -> str:
     return str(Path(base_dir) / path) + sep + name
 
 
-def _apply_resolution(run, value, table):
-    from taichi_mex.options import apply_overrides
-
-    if not isinstance(value, str):
-        return apply_overrides(run, {"spacing_mm": float(value)})
-    if not table:
-        raise UserInputError(f"resolution = {value!r}: this taichi_mex has no named resolution "
-                             "presets; give the spacing in mm (resolution = 0.05).")
-    if value not in table:
-        raise UserInputError(f"Unknown resolution preset {value!r}; choose "
-                             f"{', '.join(sorted(table))} or a spacing in mm.")
-    entry = table[value]
-    if isinstance(entry, (int, float)):
-        return apply_overrides(run, {"spacing_mm": float(entry)})
-    if hasattr(entry, "__dataclass_fields__"):
-        entry = {f.name: getattr(entry, f.name) for f in fields(entry)}
-    entry = entry.get("run", entry)
-    names = _dataclass_fields(run)
-    return apply_overrides(run, {k: v for k, v in entry.items() if k in names})
-
-
-def _viscosity_scale(value):
-    if isinstance(value, str):
-        text = value.lower()
-        if text == "auto":
-            return "auto"
-        if text in ("off", "none"):
-            return 1.0
-        raise UserInputError(f"viscosity_scale is a number in (0, 1], 'auto' or 'off', not {value!r}.")
-    return float(value)
-
-
 def _pattern_kwargs(gen: dict, printer: str) -> dict:
     beads = gen["block_beads"] if gen["pattern"] == "block" else 1
     layers = gen["block_layers"] if gen["pattern"] == "block" else 1
@@ -464,96 +249,42 @@ def _pattern_kwargs(gen: dict, printer: str) -> dict:
                 bead_length_mm=gen["bead_length_mm"], beads=beads, layers=layers, printer=printer)
 
 
-def _scene_spec(name: str):
-    from taichi_mex.scenes import load_all
-
-    scenes = load_all()
-    if name == "print":
-        raise UserInputError("scene = 'print' is the default; give gcode = ... instead.")
-    if name not in scenes:
-        raise UserInputError(f"Unknown scene '{name}'; choose one of {', '.join(scenes)}.")
-    return scenes[name]
-
-
-def _scene_parser(spec, with_run_options: bool = True):
-    from taichi_mex.app.cli import _Parser, add_run_options
-
-    p = _Parser(prog=f"scene {spec.name}", add_help=False)
-    if with_run_options:
-        add_run_options(p)
-    spec.add_arguments(p)
-    return p
-
-
-def _resolve_scene(res: Resolved, params: dict) -> Resolved:
-    spec = _scene_spec(params["scene"])
-    for name in ("gcode", "printer", "layers", "region", "until", "deposit_for_s", "settle",
-                 "feed_rate_factor", "flow_factor", "nozzle_height", "nozzle_tip_outer_diameter_mm",
-                 *_GENERATE_DEFAULTS):
-        if name in params:
-            raise UserInputError(f"{name} applies to prints; scene '{spec.name}' takes "
-                                 f"scene.OPTION instead (e.g. scene.until).")
-    res.scene = spec.name
-    res.scene_overrides = {k[6:]: v for k, v in params.items() if k.startswith("scene.")}
-    return res
-
-
 # --------------------------------------------------------------------------- building
 @dataclass
 class Job:
-    scene: object
-    run: object
-    material: object
-    gcode: Path | None = None
+    spec: RunSpec
     notes: dict = field(default_factory=dict)
 
 
 def build_job(res: Resolved, out_dir) -> Job:
-    """Write the run's G-code (generated or rewritten) into ``out_dir`` and build the scene."""
-    from taichi_mex.options import apply_overrides
+    """Write the run's G-code (generated or rewritten) into ``out_dir`` and complete the run
+    description with it (and with the stop time that deposit_for_s asks for)."""
+    spec = res.spec
+    if spec.scene != "print":
+        return Job(spec, notes={"scene": spec.scene})
+    from taichi_mex.toolpath.generate import write_pattern, write_scaled
+    from taichi_mex.toolpath.plan import make_plan
+    from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 
     out_dir = Path(out_dir)
-    if res.scene != "print":
-        spec = _scene_spec(res.scene)
-        parser = _scene_parser(spec)
-        args = parser.parse_args([])
-        for key, value in res.scene_overrides.items():
-            setattr(args, key, value)
-        scene, run_defaults, material_overrides = spec.build(args)
-        run = res.run
-        explicit = {"scheme", "spacing_mm", "resolution", "preset"} & set(res.params)
-        defaults = {k: v for k, v in run_defaults.items()
-                    if not ({k} & explicit or (k == "spacing_mm" and "resolution" in explicit))
-                    and f"run.{k}" not in res.params}
-        run = apply_overrides(run, defaults)
-        run.validate()
-        material = apply_overrides(res.material, material_overrides)
-        return Job(scene, run, material, notes={"scene": res.scene})
-
-    from taichi_mex.toolpath.generate import write_pattern, write_scaled
-    from taichi_mex.scenes.print import PrintScene
-
     notes: dict = {}
+    o = spec.options
     if res.generate is not None:
-        gcode = write_pattern(out_dir / "input.gcode",
-                              **_pattern_kwargs(res.generate, res.scene_kwargs["printer"]))
+        gcode = write_pattern(out_dir / "input.gcode", **_pattern_kwargs(res.generate, o.printer))
         notes["gcode_source"] = f"generated ({res.generate['pattern']})"
     else:
-        gcode = res.gcode
+        gcode = bundled.resolve_gcode(o.gcode)
         notes["gcode_source"] = str(gcode)
     if res.feed_rate_factor != 1.0 or res.flow_factor != 1.0:
         gcode = write_scaled(gcode, out_dir / "input_scaled.gcode", res.feed_rate_factor,
                              res.flow_factor)
-    kw = dict(res.scene_kwargs)
+    changes = {"scene.gcode": str(Path(gcode).resolve())}
     if res.deposit_for_s is not None:
-        from taichi_mex.toolpath.plan import make_plan
-
-        plan = make_plan(gcode, kw["printer"], layers=kw["layers"], region_mm=kw["region_mm"],
-                         plan_whole_file=False)
-        kw["until_s"] = plan.selection.t_start_s + res.deposit_for_s
+        plan = make_plan(gcode, o.printer, layers=parse_layers(o.layers),
+                         region_mm=parse_region(o.region), plan_whole_file=False)
+        changes["scene.until_s"] = plan.selection.t_start_s + res.deposit_for_s
         notes["deposition_start_s"] = plan.selection.t_start_s
-    scene = PrintScene(gcode, **kw)
-    return Job(scene, res.run, res.material, gcode=Path(gcode), notes=notes)
+    return Job(spec.with_changes(changes), notes=notes)
 
 
 # --------------------------------------------------------------------------- metrics
@@ -630,7 +361,7 @@ def _cooling_time(*sources) -> float | None:
     return None
 
 
-def key_metrics(summary: dict | None, meso: dict | None, config_notes: dict | None = None) -> dict:
+def key_metrics(summary: dict | None, meso: dict | None, nozzle_speed_m_s: float | None = None) -> dict:
     s = summary or {}
     out = {
         "density_error_mean": _number(s.get("density_error_mean")),
@@ -644,8 +375,7 @@ def key_metrics(summary: dict | None, meso: dict | None, config_notes: dict | No
         "simulated_time_s": _number(s.get("simulated_time_s")),
         "sim_wall_time_s": _number(s.get("wall_time_s")),
     }
-    notes = config_notes or {}
-    speed = _number(notes.get("speed_scale_m_s")) if "gcode" in notes else None  # prints only
+    speed = _number(nozzle_speed_m_s)
     out["max_nozzle_speed_mm_s"] = None if speed is None else 1e3 * speed
     out.update(mesostructure_metrics(meso))
     for name in ("bead_width_mm", "bead_height_mm", "bead_area_mm2", "void_fraction"):
@@ -727,16 +457,17 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
               "host": socket.gethostname(), "pid": os.getpid()}
     t0 = time.perf_counter()
     summary = meso = None
-    notes: dict = {}
+    nozzle_speed = None
     try:
         res = resolve(params, base_dir)
         job = build_job(res, out_dir)
         record["job_notes"] = job.notes
         from taichi_mex.sim.simulation import Simulation
 
-        sim = Simulation(job.scene, job.run, job.material, out_dir=out_dir)
-        notes = dict(sim.plan.notes)
-        record["cpu_threads"] = job.run.cpu_threads
+        sim = Simulation.from_spec(job.spec, out_dir=out_dir)
+        if job.spec.scene == "print":
+            nozzle_speed = sim.plan.speed_scale_m_s
+        record["cpu_threads"] = job.spec.run.cpu_threads
         record["estimate"] = {k: sim.estimate[k] for k in ("particles", "steps_estimate",
                                                            "memory_bytes")}
         summary = sim.run()
@@ -746,7 +477,7 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
         else:
             record["status"] = "done"
             if res.analysis:
-                meso = _analyse(out_dir, record, job.scene)
+                meso = _analyse(out_dir, record, sim.scene)
     except UserInputError as exc:
         record.update(status="failed", failure="refused", error=str(exc))
     except SimulationDiverged as exc:
@@ -760,7 +491,7 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
                       error=f"{type(exc).__name__}: {lines[-1] if lines else ''}",
                       traceback=traceback.format_exc(limit=20))
     record["finished"] = timestamp()
-    metrics = key_metrics(summary, meso, notes)
+    metrics = key_metrics(summary, meso, nozzle_speed)
     metrics["wall_time_s"] = time.perf_counter() - t0
     record["metrics"] = metrics
     if summary:

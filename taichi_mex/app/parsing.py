@@ -45,6 +45,8 @@ def _parsing(parse):
 
 def _value_type(hint):
     args = [a for a in typing.get_args(hint) if a is not type(None)] or [hint]
+    if str in args:
+        return str
     for kind in (float, int):
         if kind in args:
             return _finite(kind)

@@ -61,20 +61,17 @@ def bench_ours(steps: int = 100, dx_m: float = DX_M, threads: int | None = None,
                precision: str = "f32", arch: str = "cpu", warm_steps: int = 3) -> dict:
     """Our dam break: ``warm_steps`` untimed steps (kernel compilation), then ``steps`` timed."""
     from taichi_mex.backend import ti
-    from taichi_mex.options import Material, RunOptions, apply_overrides
-    from taichi_mex.scenes import dam_break
     from taichi_mex.sim.simulation import Simulation
+    from taichi_mex.spec import RunSpec
 
-    run = apply_overrides(RunOptions(progress=False, snapshots=False, cpu_threads=threads,
-                                     precision=precision, arch=arch),
-                          dam_break.run_options(dx_m))
-    material = apply_overrides(Material(), dam_break.material())
-    scene = dam_break.DamBreak3DScene(until_s=1.0)
-    sim = Simulation(scene, run, material)
+    spec = RunSpec.create("dam-break", changes={
+        "scene.dx_m": dx_m, "scene.until_s": 1.0, "run.progress": False, "run.snapshots": False,
+        "run.cpu_threads": threads, "run.precision": precision, "run.arch": arch})
+    sim = Simulation.from_spec(spec)
     t_build = time.perf_counter()
     sim.build()
     # warm-up through the ordinary run loop: compiles every kernel on the path, incl. a re-sort
-    sim.run(until_s=warm_steps * pysph_dt(dx_m), progress=False)
+    sim.run(until_s=warm_steps * pysph_dt(dx_m))
     warm_s = time.perf_counter() - t_build
     solver = sim.solver
     t = sim.time_s
@@ -96,7 +93,7 @@ def bench_ours(steps: int = 100, dx_m: float = DX_M, threads: int | None = None,
     cpu = time.process_time() - cpu0
     speed = solver.max_speed()
     out = {
-        "code": "taichi_mex", "particles": int(sim.state.n), **scene.counts,
+        "code": "taichi_mex", "particles": int(sim.state.n), **sim.scene.counts,
         "steps": steps, "wall_s": wall, "cpu_s": cpu, "particle_steps_per_s": particle_steps / wall,
         "dt_first_s": dts[0], "dt_last_s": dts[-1], "neighbour_rebuilds": sim.grid.rebuilds - rebuilds0,
         "max_speed_m_s": speed, "finite": bool(math.isfinite(speed)),

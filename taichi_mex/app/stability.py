@@ -55,10 +55,9 @@ CASES = [
 
 def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5, arch: str = "cpu") -> dict:
     """Run one case in this process; returns a row for the table (never raises)."""
-    from taichi_mex.options import EDACOptions, Material, RunOptions
-    from taichi_mex.toolpath.generate import write_pattern
-    from taichi_mex.scenes.print import PrintScene
     from taichi_mex.sim.simulation import Simulation
+    from taichi_mex.spec import RunSpec
+    from taichi_mex.toolpath.generate import write_pattern
 
     p = case.params
     out_dir = Path(out_dir)
@@ -69,11 +68,13 @@ def run_case(case: Case, out_dir: Path, bead_length_mm: float = 1.5, arch: str =
         gcode = write_pattern(out_dir / "bead.gcode", layer_height_mm=p["layer_height_mm"],
                               speed_mm_s=p["speed_mm_s"], bead_length_mm=bead_length_mm,
                               line_width_mm=max(0.45, p["layer_height_mm"] + 0.1))
-        scene = PrintScene(gcode)
-        run = RunOptions(scheme=p["scheme"], spacing_mm=p["spacing_mm"], precision=p["precision"],
-                         dt_factor=p["dt_factor"], viscosity_scale=1.0, progress=False, arch=arch,
-                         snapshots=False, edac=EDACOptions(sound_speed_m_s=6.0))
-        sim = Simulation(scene, run, Material(viscosity_pa_s=p["viscosity_pa_s"]))
+        spec = RunSpec.create("print", changes={
+            "scene.gcode": str(gcode), "run.scheme": p["scheme"], "run.spacing_mm": p["spacing_mm"],
+            "run.precision": p["precision"], "run.dt_factor": p["dt_factor"],
+            "run.viscosity_scale": 1.0, "run.progress": False, "run.arch": arch,
+            "run.snapshots": False, "run.edac.sound_speed_m_s": 6.0,
+            "material.viscosity_pa_s": p["viscosity_pa_s"]})
+        sim = Simulation.from_spec(spec, out_dir)
         s = sim.run()
         slice_mm3 = sim.inlet.n_slice * p["spacing_mm"] ** 3
         mass_ok = abs(s["deposited_volume_mm3"] - s["commanded_volume_mm3"]) <= 0.5 * slice_mm3 + 1e-9

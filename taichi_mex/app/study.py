@@ -13,6 +13,7 @@ import json
 import time
 from pathlib import Path
 
+from taichi_mex.app.parsing import Parser
 from taichi_mex.errors import UserInputError
 
 #: each ladder: (label, parameters for jobs.run_job_isolated); the first entry of a study is
@@ -63,12 +64,12 @@ LADDERS = {
     "thermal-beam": {
         "base": {"scene": "thermal-beam", "snapshots": False},
         "runs": [
-            ("eigenvalue dx=4", {"spacing_mm": 4.0, "scene.surface_method": "eigenvalue"}),
-            ("colour_gradient dx=4", {"spacing_mm": 4.0, "scene.surface_method": "colour_gradient"}),
-            ("eigenvalue dx=2", {"spacing_mm": 2.0, "scene.surface_method": "eigenvalue"}),
-            ("colour_gradient dx=2", {"spacing_mm": 2.0, "scene.surface_method": "colour_gradient"}),
+            ("eigenvalue dx=4", {"spacing_mm": 4.0, "run.thermal.surface_method": "eigenvalue"}),
+            ("colour_gradient dx=4", {"spacing_mm": 4.0, "run.thermal.surface_method": "colour_gradient"}),
+            ("eigenvalue dx=2", {"spacing_mm": 2.0, "run.thermal.surface_method": "eigenvalue"}),
+            ("colour_gradient dx=2", {"spacing_mm": 2.0, "run.thermal.surface_method": "colour_gradient"}),
             ("colour_gradient dx=2 f64", {"spacing_mm": 2.0, "precision": "f64",
-                                         "scene.surface_method": "colour_gradient"}),
+                                         "run.thermal.surface_method": "colour_gradient"}),
         ],
         "quick": [("colour_gradient dx=5", {"spacing_mm": 5.0, "scene.until": 5.0})],
     },
@@ -197,9 +198,7 @@ def _read(path: Path):
 
 
 def main(argv: list[str]) -> int:
-    from taichi_mex.app.cli import _Parser
-
-    p = _Parser(prog="python -m taichi_mex study",
+    p = Parser(prog="python -m taichi_mex study",
                 description="Run a ladder of settings on a reference scene and write trade.csv")
     p.add_argument("scene", choices=sorted(LADDERS))
     p.add_argument("--out", type=Path, default=Path("study_out"))

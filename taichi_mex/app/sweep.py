@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from taichi_mex.app import jobs
+from taichi_mex.app.parsing import Parser
 from taichi_mex.errors import UserInputError
 
 SECTIONS = ("study", "base", "grid", "runs", "sweep", "plot")
@@ -587,9 +588,7 @@ def _close(client, cluster) -> None:
 
 # --------------------------------------------------------------------------- command line
 def sweep_parser() -> argparse.ArgumentParser:
-    from taichi_mex.app.cli import _Parser
-
-    p = _Parser(prog="python -m taichi_mex sweep",
+    p = Parser(prog="python -m taichi_mex sweep",
                 description="Run a parameter study (a TOML study file) on Dask: a local cluster "
                 "sized to this machine, or an existing cluster with --scheduler. Re-running the "
                 "same command resumes: finished runs are skipped.")

@@ -15,7 +15,7 @@ import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 HUPPERT_ETA_N = (2**10 / (3**4 * math.pi**3)) ** 0.125

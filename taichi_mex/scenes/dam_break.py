@@ -28,7 +28,7 @@ import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
 from taichi_mex.options import Positive, opt
-from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan
 
 #: lattice coordinates (units of dx) closer than this to a face count as on it

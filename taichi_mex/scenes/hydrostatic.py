@@ -6,7 +6,7 @@ import numpy as np
 
 from taichi_mex.core.state import FLUID, PLATE
 from taichi_mex.options import Positive, opt
-from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.scenes.base import ScenePlan, box_walls, lattice_block
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from taichi_mex import bundled
 from taichi_mex.errors import UserInputError
 from taichi_mex.options import Either, NONE, NonNegative, OneOf, Positive, Text, opt
-from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.sim.boundaries import plate_lattice
 from taichi_mex.toolpath.plan import make_plan
 from taichi_mex.toolpath.trajectory import parse_layers, parse_region

@@ -22,7 +22,7 @@ import numpy as np
 from taichi_mex.physics.thermal import STEFAN_BOLTZMANN, diffusion_dt_s
 from taichi_mex.core.state import SOLID
 from taichi_mex.options import Flag, Positive, Range, opt
-from taichi_mex.scenes import SceneEntry, register
+from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
 
 #: paper values (Sec. "Validation of the Thermal Model")

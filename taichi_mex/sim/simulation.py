@@ -462,15 +462,24 @@ class Simulation:
         return data
 
     def description(self):
-        """The run description that re-creates this run (written as config.json)."""
-        from taichi_mex.spec import RunSpec
+        """The run description that re-creates this run (written as config.json); None for a
+        scene built in Python that no registered scene describes."""
+        from taichi_mex.spec import RunSpec, scene_entries
 
+        entry = scene_entries().get(getattr(self.scene, "name", None))
+        if entry is None or not isinstance(getattr(self.scene, "options", None), entry.options):
+            return None
         return RunSpec(self.scene.name, self.scene.options, self.run_opts, self.material, self.preset)
 
     def _open_writer(self):
         if self.out_dir is None:
             return None
-        self.description().write(self.out_dir)
+        description = self.description()
+        if description is not None:
+            description.write(self.out_dir)
+        else:
+            log.warning("scene '%s' is not a registered scene: no config.json (the run cannot be "
+                        "re-created from a file)", getattr(self.scene, "name", "?"))
         from taichi_mex.post.output import FrameWriter
 
         writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields())
