@@ -306,6 +306,63 @@ class EDACOptions:
 
 
 @dataclass
+class DFSPHStabilisers:
+    """Stabilisers of the creeping melt that come from no cited paper: each was added after a
+    measured failure of the single bead or the paper block (physics/dfsph.py says which), and
+    they are to be replaced by a coupled Stokes solve of pressure and viscosity. A step is
+    'creeping' where nu dt / dx^2 >= creeping_diffusion."""
+
+    creeping_diffusion: float = opt(
+        10.0, help="a step is creeping where nu dt / dx^2 >= this (-): viscous diffusion over "
+        "about 3 spacings per step; the difference form of tension, the closing-speed limit, "
+        "droplet ejection and the speed clamp act only there (a water-like fluid, nu dt / dx^2 "
+        "~ 1, blew up with the difference form)", check=Positive())
+    tension_relaxation: float = opt(
+        0.2, help="inside the melt the density solve also corrects expansions, this fraction per "
+        "step (-; the unscaled single bead blew up at 0.3-1.0)", check=Range(0.0, 1.0))
+    divergence_tension: str = opt(
+        "interior", help="where the divergence solve also removes expansion rates: 'none' (the "
+        "paper: compression only), 'interior' (away from the free surface and the nozzle) or "
+        "'everywhere'", check=OneOf("none", "interior", "everywhere"))
+    tension_form: str = opt(
+        "difference", help="how tension (k < 0) acts in creeping steps: 'difference' (pressure "
+        "gradients only) or 'symmetric' (the papers' G, which pairs melt under tension)",
+        check=OneOf("difference", "symmetric"))
+    release_growing_only: bool = opt(
+        True, help="take back only the uniform part of tension the density solve adds; a step "
+        "that relieves tension keeps its symmetric form (else melt under tension was pressed "
+        "into the plate: +1.1 % compression at the bead's bottom edge)", check=Flag())
+    pressure_memory_loss: float = opt(
+        0.05, help="fraction of last step's summed pressure the predictor forgets (-): noise of "
+        "the toleranced solves would otherwise random-walk from step to step; the density "
+        "solve's relative_residual makes it restore what it forgot", check=Range(0.0, 1.0))
+    shifting: float = opt(
+        0.0, help="particle shifting D = shifting dx^2 per step (-; Lind et al. 2012); 0.5 "
+        "wrecked the hydrostatic pressure (56 % error)", check=NonNegative())
+    speed_scale_m_s: float | None = opt(
+        None, help="the speed the closing, ejection and clamp speeds scale with (m/s); None: "
+        "the scene's speed scale (its fastest nozzle move)", check=Either(NONE, NonNegative()),
+        parse=parse_optional_float)
+    closing_speed_factor: float = opt(
+        1.0, help="tension closes gaps in a creeping melt at most this times the speed scale "
+        "(-; 0: no limit); a fixed fraction per step pulled at a speed ~ 1/dt and flung melt",
+        check=NonNegative())
+    isolated_neighbours: int = opt(
+        4, help="in creeping steps melt with at most this many neighbours moving faster than "
+        "eject_speed_factor times the speed scale is a flung droplet and leaves the run "
+        "(counted as lost)", check=Range(0, 1000, integer=True))
+    eject_speed_factor: float = opt(
+        3.0, help="droplet ejection speed / speed scale (-; 0: off)", check=NonNegative())
+    clamp_speed_factor: float = opt(
+        5.0, help="in creeping steps melt is slowed to this times the speed scale (-; 0: off): "
+        "at Re ~ 1e-5 anything 5x faster than the nozzle is a numerical kick",
+        check=NonNegative())
+    clamp_alarm: float = opt(
+        0.25, help="a step that slows more than this fraction of the melt to the clamp speed "
+        "stops the run as blown up (-)", check=Range(0.0, 1.0, lo_open=True))
+
+
+@dataclass
 class DFSPHOptions:
     """Divergence-free SPH (Bender & Koschier 2015/2017) with implicit viscosity."""
 
@@ -347,6 +404,43 @@ class DFSPHOptions:
                                         "many CG iterations", check=Range(1, 100000, integer=True))
     no_slip: bool = opt(True, help="plate and nozzle are no-slip walls for the viscosity solve",
                         check=Flag())
+    relative_residual: float | None = opt(
+        0.1, help="the density solve also runs until its preconditioned residual norm has fallen "
+        "by this factor (-; CG only; None: stop on the absolute errors alone). The summed "
+        "pressure is a running sum of the solves' increments; with absolute stops alone a "
+        "smooth error of it (the hydrostatic gradient) leaves too little density error to be "
+        "corrected, and which part of it survives depended on rounding (the hydrostatic "
+        "tank's gradient error read 0.19-0.41 for reduction blocks of 256, 1024 and 64)",
+        check=Either(NONE, Range(0.0, 1.0, lo_open=True)), parse=parse_optional_float)
+    method: str = opt("cg", help="pressure solver: 'cg' (Jacobi-preconditioned conjugate "
+                      "gradients) or 'jacobi' (the papers' relaxed sweeps)",
+                      check=OneOf("cg", "jacobi"))
+    jacobi_omega: float = opt(0.5, help="relaxation of the 'jacobi' method (-)",
+                              check=Range(0.0, 1.0, lo_open=True))
+    cg_chunk: int = opt(4, help="solver iterations per kernel launch (unrolled; iterations "
+                        "after convergence do no work)", check=Range(1, 64, integer=True))
+    density_compression_only: bool = opt(
+        False, help="the density solve corrects compression only, everywhere, as in the paper "
+        "(with tension inside the melt allowed, see stabilisers.tension_relaxation)",
+        check=Flag())
+    inlet_rows: bool = opt(
+        True, help="the melt column in the bore takes part in the density solve as rows with a "
+        "prescribed velocity (compression only); without, slices left the bore up to 8 % "
+        "compressed", check=Flag())
+    inlet_row_min_coupling: float = opt(
+        0.1, help="... where the fluid makes up at least this share of the row's "
+        "sum_j |V_j grad W_ij|^2 (-)", check=Range(0.0, 1.0))
+    correction_in_pressure: bool = opt(
+        False, help="a compression correction's k stays in the summed pressure (else it changes "
+        "the velocity only; kept, the next step re-applied the kick)", check=Flag())
+    max_travel_spacings: float = opt(
+        0.5, help="a step whose pressure solve leaves melt moving more than this many spacings "
+        "is redone with half the time step (-)", check=Positive())
+    step_retries: int = opt(4, help="at most this many halvings of one step",
+                            check=Range(0, 30, integer=True))
+    stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers (no cited source; to be "
+                                        "replaced by a coupled Stokes solve)",
+                                        factory=DFSPHStabilisers)
 
 
 @dataclass
@@ -392,7 +486,7 @@ class RunOptions:
     support_factor: float | None = opt(None, help="support radius / spacing (-); None = the "
                                        "scheme's choice", check=Either(NONE, Range(1.5, 4.0)))
     gravity_m_s2: float = opt(9.81, help="gravity (m/s^2, pointing -z)", check=NonNegative())
-    arch: str = opt("cpu", help="cpu or gpu (cuda, vulkan)", check=OneOf(*ARCHES), flag="--arch",
+    arch: str = opt("cpu", help="cpu or gpu (CUDA or Vulkan, whichever Taichi finds)", check=OneOf(*ARCHES), flag="--arch",
                     names=("arch",))
     precision: str = opt("f32", help="floating-point precision of the particle state",
                          check=OneOf(*PRECISIONS), flag="--precision", names=("precision",))

@@ -21,3 +21,18 @@ def write_gcode(tmp_path):
 def pygcd_example(name: str) -> Path:
     """A slicer file shipped in pyGCodeDecode's wheel."""
     return Path(str(importlib.resources.files("pyGCodeDecode"))) / "examples" / "data" / name
+
+
+#: test tiers. Unit tests (every file not named here) take seconds; the validation tier runs
+#: short simulations against analytic or reference results and is part of the default run
+#: (python -m pytest, ~10 minutes on 2 cores); slow cases are marked slow and run with -m slow.
+#:   python -m pytest -m "not validation and not slow"     # unit tier, about a minute
+#:   python -m pytest -m validation                        # validation tier
+VALIDATION_FILES = {"test_dfsph.py", "test_edac.py", "test_thermal.py", "test_tension.py",
+                    "test_print.py", "test_stability.py", "test_dam_break.py", "test_pairing.py"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in VALIDATION_FILES:
+            item.add_marker(pytest.mark.validation)

@@ -199,7 +199,7 @@ def test_tiny_study_on_two_workers_records_failures_and_goes_on(tiny_sweep):
     records = _records(out)
     assert len(records) == 4
     by_failure = {r.get("failure"): r for r in records.values()}
-    assert "outside 0.001-100 mm" in by_failure["refused"]["error"]
+    assert "spacing_mm = 500.0 is outside [0.001, 100]" in by_failure["refused"]["error"]
     assert "blew up" in by_failure["diverged"]["error"]
     done = [r for r in records.values() if r["status"] == "done"]
     assert {r["params"]["viscosity"] for r in done} == {0.1, 0.2}

@@ -64,83 +64,59 @@ def rest_volume(kernel, spacing_m: float) -> float:
 
 @ti.data_oriented
 class DFSPH:
-    #: CG iterations per kernel launch (unrolled; iterations after convergence do no work)
-    chunk = 4
-    #: The density solve corrects compression only, everywhere, as in the paper. With tension
-    #: inside the melt it blew up in every variant measured on the single bead (CG and Jacobi,
-    #: omega 0.5-1, cubic and Wendland kernels, tension kept away from walls and from the
-    #: nozzle): SPH's tensile instability. The divergence solve may pull inside the melt.
-    density_compression_only = False
-    #: inside the melt (away from the free surface and the nozzle) expansions are corrected
-    #: too, but only this fraction per step (and in creeping steps at most closing_speed dt / dx):
-    #: with the difference form the unscaled single bead blew up at 0.3, 0.4, 0.5 and 1.0
-    #: (after 46-842 steps)
-    tension_relaxation = 0.2
-    #: where the divergence solve also removes expansion rates: 'none' (the paper: compression
-    #: only), 'interior' (away from the free surface and the nozzle) or 'everywhere'
-    divergence_tension = "interior"
-    #: fraction of last step's pressure the predictor forgets: the inexact (toleranced) solves
-    #: would otherwise let noise in the summed pressure random-walk from step to step
-    pressure_memory_loss = 0.05
-    #: particle shifting, D = beta dx^2 per step; off: at beta = 0.5 it wrecked the hydrostatic
-    #: pressure (56 % error) without fixing bead shapes
-    shifting = 0.0
-    #: how tension (k < 0) acts in creeping steps: 'difference' (gradients only, see
-    #: _release_tension) or 'symmetric' (the papers' G, which pairs melt under tension; kept for
-    #: tests/test_tension.py, and it blew up the single bead with tension near the nozzle)
-    tension_form = "difference"
-    #: take back only the uniform part of tension the density solve adds; a step that relieves
-    #: tension keeps its symmetric form. Taking that back too left melt that still carried
-    #: tension pressed into the plate (the difference form has no wall term): the single
-    #: bead's bottom edge at +1.1 % compression, uncorrected step after step
-    release_growing_only = True
-    #: the melt column in the bore takes part in the density solve as rows with a prescribed
-    #: velocity (compression only): without it the solve packs fluid against the column's
-    #: lowest slice, which the column cannot feel, and each slice left the bore up to 8 %
-    #: compressed (single bead, unscaled, at dx = 0.05 mm), a spike that set the largest
-    #: density error of the whole run and shortened the step
-    inlet_rows = True
-    #: ... where the fluid makes up at least this share of the row's sum_j |V_j grad W_ij|^2
-    inlet_row_min_coupling = 0.1
-    #: a compression correction (DFSPHOptions.compression_check) changes the velocity only: its
-    #: k stays out of the summed pressure that the next step's predictor applies. Kept in it,
-    #: the next step re-applied a one-off kick, and the viscous solve of the draft paper block
-    #: took 82 CG iterations per step instead of 39 (43 with this off), over its first 1.4 s
-    correction_in_pressure = False
-    #: a step is creeping where nu dt / dx^2 >= this (viscous diffusion over about 3 spacings
-    #: per step; single bead: 650 scaled, 6.5e4 unscaled). The difference form acts only there:
-    #: it does not conserve momentum, which the viscous solve spreads out at once in a creeping
-    #: melt, but which accumulates in a water-like fluid (the hydrostatic tank at 1 Pa s,
-    #: nu dt / dx^2 ~ 1, blew up with it). divergence_solve='auto' skips creeping steps.
-    creeping_diffusion = 10.0
-    #: 'cg' (default) or 'jacobi' (the paper's relaxed sweeps, omega 0.5)
-    method = "cg"
-    omega = 0.5
+    """The two pressure solves. Every numerical knob is a field of ``DFSPHOptions`` (and of
+    its ``stabilisers``); the reasons for their values are in the options' help and below.
 
-    #: tension closes gaps in a creeping melt at most this times the scene's speed scale
-    closing_speed_factor = 1.0
-    #: in creeping steps, melt with at most this many neighbours moving faster than
-    #: eject_speed_factor times the speed scale is a droplet flung off the nozzle: it leaves the
-    #: run (counted as lost), where its flight would set the time step or trip the blow-up check
-    isolated_neighbours = 4
-    eject_speed_factor = 3.0
-    #: in creeping steps melt is slowed to this times the speed scale: a melt at Re ~ 1e-5
-    #: moves with the nozzle, so anything 5x faster is a numerical kick (from the pressure
-    #: solve, at melt the viscous solve barely couples), which otherwise cut the step until the
-    #: run blew up; the solver counts these and stops the run when they are not rare
-    clamp_speed_factor = 5.0
+    Measured reasons kept from the tuning (single bead, unscaled unless said):
+    * density_compression_only: with tension inside the melt and no relaxation it blew up in
+      every variant (CG and Jacobi, omega 0.5-1, cubic and Wendland kernels).
+    * tension_relaxation: the difference form blew up at 0.3, 0.4, 0.5 and 1.0 (46-842 steps).
+    * release_growing_only: taking back all tension left melt that still carried it pressed
+      into the plate: +1.1 % compression at the bead's bottom edge, step after step.
+    * inlet_rows: without them the solve packed melt against the column's lowest slice, and
+      each slice left the bore up to 8 % compressed (dx = 0.05 mm).
+    * correction_in_pressure: kept in the summed pressure, a compression correction's kick was
+      re-applied next step; the draft paper block's viscous solve then took 82 CG iterations
+      per step instead of 39 (43 with the correction out) over its first 1.4 s.
+    * creeping_diffusion: the difference form does not conserve momentum; the viscous solve
+      spreads that out at once in a creeping melt (single bead: nu dt / dx^2 = 650 scaled,
+      6.5e4 unscaled) but a water-like fluid (nu dt / dx^2 ~ 1) accumulated it and blew up.
+    * clamp_speed_factor: a melt at Re ~ 1e-5 moves with the nozzle, so anything 5x faster is
+      a kick from the pressure solve, which otherwise cut the step until the run blew up.
+    """
 
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float,
                  viscosity, speed_scale_m_s: float = 0.0):
         self.state = state
+        st = opts.stabilisers
+        # knobs read once: the kernels specialise on them (ti.static) when they first compile
+        self.chunk = int(opts.cg_chunk)
+        self.method = opts.method
+        self.omega = float(opts.jacobi_omega)
+        self.density_compression_only = bool(opts.density_compression_only)
+        self.inlet_rows = bool(opts.inlet_rows)
+        self.inlet_row_min_coupling = float(opts.inlet_row_min_coupling)
+        self.correction_in_pressure = bool(opts.correction_in_pressure)
+        rel = opts.relative_residual
+        self.rel2 = 1e300 if rel is None or opts.method != "cg" else float(rel) ** 2
+        self.creeping_diffusion = float(st.creeping_diffusion)
+        self.tension_relaxation = float(st.tension_relaxation)
+        self.divergence_tension = st.divergence_tension
+        self.tension_form = st.tension_form
+        self.release_growing_only = bool(st.release_growing_only)
+        self.pressure_memory_loss = float(st.pressure_memory_loss)
+        self.shifting = float(st.shifting)
+        self.isolated_neighbours = int(st.isolated_neighbours)
         # the particles the solves loop over (fluid, and the inlet column's rows); the solver
         # updates it after every sort and phase change
         self.rows = FluidIndex(state, with_inlet=self.inlet_rows)
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
-        # fastest a creeping melt's gaps close, and the droplet ejection speed (m/s; 0: off)
-        self.closing_speed = self.closing_speed_factor * float(speed_scale_m_s)
-        self.eject_speed = self.eject_speed_factor * float(speed_scale_m_s)
-        self.clamp_speed = self.clamp_speed_factor * float(speed_scale_m_s)
+        # fastest a creeping melt's gaps close, the droplet ejection speed and the clamp speed
+        # (m/s; 0: off)
+        scale = float(speed_scale_m_s if st.speed_scale_m_s is None else st.speed_scale_m_s)
+        self.closing_speed = float(st.closing_speed_factor) * scale
+        self.eject_speed = float(st.eject_speed_factor) * scale
+        self.clamp_speed = float(st.clamp_speed_factor) * scale
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -168,8 +144,9 @@ class DFSPH:
         self.kappa_predicted = ti.field(float, shape=cap)  # kappa as the predictor applied it
         self.term = ti.field(float, shape=cap)
         self.sum = BlockSum(cap)
-        # rz, cg alpha, beta, mean error, iterations, done, n_fluid, error scale
-        self.s = ti.field(float, shape=8)
+        # rz, cg alpha, beta, mean error, iterations, done, n_fluid, initial rz (f64: the CG
+        # scalars come from f64 sums)
+        self.s = ti.field(ti.f64, shape=8)
         self.emax = ti.field(float, shape=())  # largest |residual| (scaled like s[3] by `scale`)
         self.rho_peak = ti.field(float, shape=())  # densest melt at x_n (set by prepare)
         self.rho_row = ti.field(float, shape=cap)  # density an inlet row sees (fluid's share)
@@ -461,6 +438,7 @@ class DFSPH:
             self.term[i] = r * z
         self.sum.sum(self.term, self.rows.total[None])
         self.s[0] = self.sum.total[None]
+        self.s[7] = self.sum.total[None]  # r0 . z0, for the relative stop
         for slot in range(n):
             i = self.rows.index[slot]
             self.term[i] = ti.abs(self.r[i])
@@ -477,7 +455,7 @@ class DFSPH:
 
     @ti.kernel
     def _iterate(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
-                 scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
+                 scale: float, min_iter: ti.i32, rel2: ti.f64) -> ti.types.vector(3, float):
         for _ in ti.static(range(self.chunk)):
             self._apply(n, ti.cast(self.s[5], ti.i32))
             for slot in range(n):
@@ -488,7 +466,7 @@ class DFSPH:
             for slot in range(n):
                 i = self.rows.index[slot]
                 if self.s[5] == 0.0:
-                    a = self.s[1]
+                    a = ti.cast(self.s[1], float)
                     if self.state.phase[i] == FLUID:
                         self.state.v[i] -= dt * a * self.Gp[i]  # G is linear: apply as we go
                     if ti.static(density):
@@ -501,17 +479,17 @@ class DFSPH:
                     self.term[i] = ti.abs(r)
             self.sum.sum(self.term, self.rows.total[None])
             self._largest(n, scale)
-            self._error(tol, tol_local, scale, min_iter)
+            self._error(scale)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.term[i] = self.r[i] * self.z[i]
             self.sum.sum(self.term, self.rows.total[None])
-            self._beta()
+            self._beta(tol, tol_local, min_iter, rel2)
             for slot in range(n):
                 i = self.rows.index[slot]
                 if self.s[5] == 0.0:
-                    self.p[i] = self.z[i] + self.s[2] * self.p[i]
-        return ti.Vector([self.s[3], self.s[4], self.emax[None]])
+                    self.p[i] = self.z[i] + ti.cast(self.s[2], float) * self.p[i]
+        return ti.Vector([ti.cast(self.s[3], float), ti.cast(self.s[4], float), self.emax[None]])
 
     @ti.kernel
     def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
@@ -542,7 +520,7 @@ class DFSPH:
             self.sum.sum(self.term, self.rows.total[None])
             self._largest(n, scale)
             self._count_and_check(tol, tol_local, scale, min_iter)
-        return ti.Vector([self.s[3], self.s[4], self.emax[None]])
+        return ti.Vector([ti.cast(self.s[3], float), ti.cast(self.s[4], float), self.emax[None]])
 
     @ti.func
     def _count_and_check(self, tol, tol_local, scale, min_iter):
@@ -564,26 +542,31 @@ class DFSPH:
                 self.s[4] += 1.0
 
     @ti.func
-    def _error(self, tol, tol_local, scale, min_iter):
+    def _error(self, scale):
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.s[5] == 0.0:
                 self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-                if self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter:
-                    self.s[5] = 1.0
 
     @ti.func
-    def _beta(self):
+    def _beta(self, tol, tol_local, min_iter, rel2):
+        """Stop when the mean and the largest predicted error are below their tolerances, at
+        least min_iter iterations ran, and r.z has fallen below rel2 times r0.z0; else
+        beta = r.z / last r.z."""
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.s[5] == 0.0:
                 rz = self.sum.total[None]
-                self.s[2] = rz / self.s[0] if self.s[0] > 0.0 else 0.0
-                self.s[0] = rz
+                if (self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter
+                        and rz <= rel2 * self.s[7]):
+                    self.s[5] = 1.0
+                else:
+                    self.s[2] = rz / self.s[0] if self.s[0] > 0.0 else 0.0
+                    self.s[0] = rz
 
     # ------------------------------------------------------------------ solves
     def _solve(self, dt: float, density: bool, tol: float, tol_local: float, min_iter: int,
-               max_iter: int) -> tuple[int, float]:
+               max_iter: int, rel2: float = 1e300) -> tuple[int, float]:
         n = self.rows.n
         self.s.fill(0.0)
         self._count_fluid(n)
@@ -593,10 +576,12 @@ class DFSPH:
         err = float(self.s[3])
         self.last_max_error = float(self.emax[None])
         iters = 0
-        iterate = self._jacobi if self.method == "jacobi" else self._iterate
         if err > tol or self.last_max_error > tol_local or min_iter > 0:
             while iters < max_iter:
-                out = iterate(n, dt, density, tol, tol_local, scale, min_iter)
+                if self.method == "jacobi":
+                    out = self._jacobi(n, dt, density, tol, tol_local, scale, min_iter)
+                else:
+                    out = self._iterate(n, dt, density, tol, tol_local, scale, min_iter, rel2)
                 err, iters = float(out[0]), int(out[1])
                 self.last_max_error = float(out[2])
                 if float(self.s[5]) > 0:
@@ -620,7 +605,7 @@ class DFSPH:
     def density_solve(self, dt: float) -> tuple[int, float]:
         o = self.opts
         iters, err = self._solve(dt, True, o.max_density_error, o.max_density_error_local,
-                                 o.min_iterations, o.max_iterations)
+                                 o.min_iterations, o.max_iterations, self.rel2)
         if self.tension_form == "difference":
             self._release_tension(self.rows.n, dt, True)
         self.stats["density_iterations"] = iters

@@ -72,7 +72,7 @@ class EDAC:
         for i in range(n):
             self.scratch[i] = self.grid.displacement(i) if self.state.phase[i] == FLUID else 0.0
         self.reduce.max(self.scratch, n)
-        return self.reduce.total[None]
+        return ti.cast(self.reduce.total[None], float)
 
     @ti.func
     def _advance(self, n, dt, t_eval):
@@ -122,11 +122,11 @@ class EDAC:
             self.scratch2[i] = a
             self.scratch3[i] = bad
         self.reduce.max(self.scratch, n)
-        vmax = self.reduce.total[None]
+        vmax = ti.cast(self.reduce.total[None], float)
         self.reduce.max(self.scratch2, n)
-        amax = self.reduce.total[None]
+        amax = ti.cast(self.reduce.total[None], float)
         self.reduce.sum(self.scratch3, n)
-        return ti.Vector([vmax, amax, self.reduce.total[None]])
+        return ti.Vector([vmax, amax, ti.cast(self.reduce.total[None], float)])
 
     @ti.func
     def _density_task(self, i, j, xij, acc: ti.template()):

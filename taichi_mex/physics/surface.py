@@ -25,16 +25,18 @@ from taichi_mex.core.state import FLUID, SOLID
 
 @ti.data_oriented
 class SurfaceDetector:
-    def __init__(self, sim):
-        self.sim = sim
-        st = sim.state
+    """Free-surface flags, normals and areas of the particle state (lattice spacing
+    spacing_m, m). The neighbour grid and kernel: here or later through :meth:`attach`."""
+
+    def __init__(self, state, spacing_m: float, grid=None, kernel=None):
+        st = state
         self.state = st
-        self.grid = None
-        self.K = None
+        self.grid = grid
+        self.K = kernel
         self.lam = st.add("surface_lambda")
         self.normal = st.add("surface_normal", 3)
         self.flag = st.add("free_surface", dtype=ti.i32)  # 1 free surface, 2 next to it, 0 interior
-        self.V = sim.run_opts.spacing_m ** 3
+        self.V = float(spacing_m) ** 3
         # scratch, valid right after update(): Shepard sum c_i = sum_j V_j W_ij (self
         # included) and |grad c_i| = |sum_j V_j grad W_ij|, for the colour-gradient area
         self.shepard = ti.field(float, shape=st.capacity)
@@ -252,9 +254,11 @@ def colour_calibration(kind: str, support_factor: float) -> tuple[float, float]:
     return _CALIBRATIONS[key]
 
 
-def interior_mask(sim) -> np.ndarray:
-    """Fluid particles whose whole kernel support is melt or wall (no free surface in it)."""
-    sim.surface.update()
-    phase = sim.state.phase.to_numpy()[: sim.state.n]
-    flag = sim.surface.flag.to_numpy()[: sim.state.n]
+def interior_mask(surface: SurfaceDetector) -> np.ndarray:
+    """Fluid particles whose whole kernel support is melt or wall (no free surface in it), in
+    the order of the surface detector's state."""
+    surface.update()
+    st = surface.state
+    phase = st.phase.to_numpy()[: st.n]
+    flag = surface.flag.to_numpy()[: st.n]
     return flag[phase == FLUID] == 0

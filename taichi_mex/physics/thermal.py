@@ -99,16 +99,25 @@ def diffusion_dt_s(kernel, spacing_m: float, conductivity_w_mk: float, density_k
 
 @ti.data_oriented
 class Thermal:
-    def __init__(self, sim):
-        self.sim = sim
-        st = sim.state
+    """Temperatures of the particle state.
+
+    state, kernel, spacing_m: the particles, the SPH kernel and the lattice spacing (m);
+    material: the melt's Material; opts: ThermalOptions; clock: returns the current simulated
+    time (s), for the glass-transition times. The neighbour grid and the free-surface detector
+    exist only after this module (the viscosity reads ``T``): hand them over with
+    :meth:`attach` before the first step."""
+
+    def __init__(self, state, kernel, spacing_m: float, material, opts, clock):
+        st = state
         self.state = st
-        mat = sim.material
-        opts = sim.run_opts.thermal
+        mat = material
+        self.clock = clock
+        self.K = kernel
+        self.spacing_m = float(spacing_m)
         self.k0 = float(mat.conductivity_w_mk)
         self.c0 = float(mat.specific_heat_j_kgk)
         self.rho0 = float(mat.density_kg_m3)
-        self.V0 = sim.run_opts.spacing_m ** 3
+        self.V0 = self.spacing_m ** 3
         self.k_table = _table(mat.conductivity_table, "conductivity_table")
         self.c_table = _table(mat.specific_heat_table, "specific_heat_table")
         self.T_extrusion = float(mat.extrusion_temperature_c)
@@ -136,11 +145,16 @@ class Thermal:
         self._k_of = _interpolator(self.k_table) if self.k_table else None
         self._c_of = _interpolator(self.c_table) if self.c_table else None
 
-        self.grid = None  # the neighbour grid and kernel exist only after this module: step()
-        self.K = None
+        self.grid = None  # the neighbour grid and the surface detector: attach()
+        self.surface = None
         self._areas_at = None  # grid.rebuilds count when the areas were computed
         self._d_max = None  # largest D_a of the last step, 1/s
         st.on_append.append(self._on_append)
+
+    def attach(self, grid, surface) -> None:
+        """The neighbour grid and the free-surface detector (physics/surface.py)."""
+        self.grid = grid
+        self.surface = surface
 
     # ------------------------------------------------------------------ initial values
     def _default_temperature(self, phase: int) -> float:
@@ -157,7 +171,7 @@ class Thermal:
         if count <= 0:
             return
         values = np.broadcast_to(np.asarray(value_c, dtype=np.float64), (count,))
-        t_now = float(self.sim.time_s)
+        t_now = float(self.clock())
         since = np.where(values < self.T_glass, t_now, -1.0)
         dtype = real_np_dtype()
         write_field(self.T, sl.start, np.ascontiguousarray(values, dtype=dtype))
@@ -170,26 +184,23 @@ class Thermal:
         if self._d_max is None or self._d_max <= 0:
             k_max = max(self.k_table[1]) if self.k_table else self.k0
             c_min = min(self.c_table[1]) if self.c_table else self.c0
-            dt = diffusion_dt_s(self.sim.kernel, self.sim.run_opts.spacing_m, k_max, self.rho0, c_min)
+            dt = diffusion_dt_s(self.K, self.spacing_m, k_max, self.rho0, c_min)
         else:
             dt = SAFETY / self._d_max
         return {"thermal": dt}
 
     def step(self, dt: float) -> None:
         """Advance temperatures by dt; call where neighbour lists and densities are current."""
-        sim = self.sim
-        self.grid, self.K = sim.grid, sim.kernel
-        if self.losses and self._areas_at != sim.grid.rebuilds:
+        if self.losses and self._areas_at != self.grid.rebuilds:
             self.update_areas()
-        self._d_max = float(self._advance(self.state.n, dt, float(sim.time_s) + dt))
+        self._d_max = float(self._advance(self.state.n, dt, float(self.clock()) + dt))
 
     def update_areas(self) -> None:
         """Free-surface area per particle (the surface moves only as fast as the lists are
         rebuilt, so areas are refreshed with them)."""
-        sim = self.sim
-        sim.surface.update()
-        sim.surface.areas(self.area, self.method)
-        self._areas_at = sim.grid.rebuilds
+        self.surface.update()
+        self.surface.areas(self.area, self.method)
+        self._areas_at = self.grid.rebuilds
 
     # ------------------------------------------------------------------ kernels
     @ti.func

@@ -44,12 +44,11 @@ def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> floa
 
 @ti.data_oriented
 class ImplicitViscosity:
-    chunk = 4  # CG iterations per kernel launch
-
     def __init__(self, state, grid, kernel, viscosity, mass_kg: float, rho0: float,
                  spacing_m: float, tolerance: float, max_iterations: int, fluid,
-                 no_slip: bool = True):
+                 no_slip: bool = True, chunk: int = 4):
         self.state = state
+        self.chunk = int(chunk)  # CG iterations per kernel launch (DFSPHOptions.cg_chunk)
         self.fl = fluid  # state.FluidIndex: every loop here runs over fluid only
         self.grid = grid
         self.K = kernel
@@ -76,7 +75,8 @@ class ImplicitViscosity:
         self.cF = ti.field(float, shape=(cap, grid.max_neighbours))
         self.term = ti.field(float, shape=cap)
         self.sum = BlockSum(cap)
-        self.scalars = ti.field(float, shape=8)  # rz, alpha, beta, |b|^2, |r|^2, iterations, done
+        # rz, alpha, beta, |b|^2, |r|^2, iterations, done (f64, as the sums they come from)
+        self.scalars = ti.field(ti.f64, shape=8)
         self.stats = {"viscosity_iterations": 0, "viscosity_residual": 0.0}
 
     # ---------------------------------------------------------------- operator
@@ -162,7 +162,7 @@ class ImplicitViscosity:
             self.term[i] = self.r[i].norm_sqr()
         self.sum.sum(self.term, self.fl.total[None])
         self.scalars[4] = self.sum.total[None]
-        return self.scalars[4] / ti.max(self.scalars[3], 1e-300)
+        return ti.cast(self.scalars[4] / ti.max(self.scalars[3], 1e-300), float)
 
     @ti.func
     def _apply(self, n, dt):
@@ -190,7 +190,7 @@ class ImplicitViscosity:
             for slot in range(n):
                 i = self.fl.index[slot]
                 if self.scalars[6] == 0.0:
-                    a = self.scalars[1]
+                    a = ti.cast(self.scalars[1], float)
                     self.x[i] += a * self.p[i]
                     r = self.r[i] - a * self.Ap[i]
                     self.r[i] = r
@@ -207,8 +207,9 @@ class ImplicitViscosity:
             for slot in range(n):
                 i = self.fl.index[slot]
                 if self.scalars[6] == 0.0:
-                    self.p[i] = self.z[i] + self.scalars[2] * self.p[i]
-        return ti.Vector([self.scalars[4] / ti.max(self.scalars[3], 1e-300), self.scalars[5]])
+                    self.p[i] = self.z[i] + ti.cast(self.scalars[2], float) * self.p[i]
+        return ti.Vector([ti.cast(self.scalars[4] / ti.max(self.scalars[3], 1e-300), float),
+                          ti.cast(self.scalars[5], float)])
 
     @ti.func
     def _alpha(self):
