@@ -107,7 +107,7 @@ NONE = OneOf(None)
 
 def opt(default=MISSING, *, help: str, check: Check | None = None, flag: tuple | str | None = None,
         names: tuple = (), parse=None, implies: dict | None = None, const=MISSING,
-        flag_help: str | None = None, factory=None):
+        flag_help: str | None = None, repeat: bool = False, factory=None):
     """A declared option field.
 
     ``help`` states the meaning and unit. ``flag``: the command-line spelling(s); ``parse``
@@ -117,7 +117,7 @@ def opt(default=MISSING, *, help: str, check: Check | None = None, flag: tuple |
     one is given by a user. ``flag_help``: the flag's own help where it differs (a flag that
     switches something off). A nested group of options is declared with ``factory``."""
     meta = {"help": help, "check": check, "flag": (flag,) if isinstance(flag, str) else flag,
-            "flag_help": flag_help,
+            "flag_help": flag_help, "repeat": repeat,
             "names": tuple(names), "parse": parse, "implies": dict(implies or {}), "const": const}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
@@ -206,6 +206,28 @@ def parse_optional_float(text):
     return text
 
 
+def parse_point(text):
+    """'X,Y,Z' in mm -> (x, y, z)."""
+    if isinstance(text, str):
+        try:
+            x, y, z = (float(v) for v in text.split(","))
+        except ValueError:
+            raise UserInputError(f"A probe is X,Y,Z in mm (e.g. 12.5,10,0.1), not '{text}'.") from None
+        return (x, y, z)
+    return text
+
+
+class Points(Check):
+    """((x, y, z), ...) finite coordinates."""
+
+    def problem(self, value):
+        try:
+            ok = all(len(p) == 3 and all(_number(c) for c in p) for p in value)
+        except TypeError:
+            ok = False
+        return None if ok else "must be a list of (x, y, z) points in mm"
+
+
 def parse_bool_or_auto(text):
     if isinstance(text, str):
         low = text.strip().lower()
@@ -272,6 +294,10 @@ class Material:
         "and where temperature-dependent viscosity is evaluated", check=Range(-273.15, None, lo_open=True),
         names=("nozzle_temperature_c",))
     emissivity: float = opt(0.92, help="surface emissivity (-)", check=Range(0.0, 1.0))
+    solid_density_kg_m3: float = opt(1240.0, help="room-temperature solid density (kg/m^3; for "
+                                     "reports: the melt density sets the mass)", check=Positive())
+    surface_tension_n_m: float = opt(0.0, help="melt surface tension (N/m; recorded, not yet "
+                                     "modelled)", check=NonNegative())
 
     def zero_shear_viscosity(self, temperature_c: float) -> float:
         """eta0(T) in Pa s for the chosen model (Newtonian: constant)."""
@@ -503,6 +529,11 @@ class RunOptions:
                               "pressure, velocity, temperature, ...)", check=Text(), flag="--field")
     snapshots: bool = opt(True, help="write PNG snapshots", check=Flag(), flag="--no-snapshots",
                           const=False, names=("snapshots",), flag_help="skip the PNG snapshots")
+    probes_mm: tuple = opt((), help="points (x, y, z in mm, the G-code's coordinates) where "
+                           "temperature and velocity are recorded into probes.csv; repeat the flag",
+                           check=Points(), flag="--probe", parse=parse_point, repeat=True)
+    probe_every_s: float | None = opt(None, help="probe sampling interval (s; None: 200 samples "
+                                      "over the run)", check=Either(NONE, Positive()))
     plate_layers: int = opt(3, help="particle layers of the build plate",
                             check=Range(1, 50, integer=True))
     margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",

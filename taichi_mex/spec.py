@@ -204,6 +204,8 @@ class RunSpec:
     run: RunOptions = field(default_factory=RunOptions)
     material: Material = field(default_factory=Material)
     preset: str | None = None
+    #: the shipped material name or TOML file the material came from (provenance only)
+    material_source: str | None = None
 
     def __post_init__(self):
         if self.options is None:
@@ -212,8 +214,9 @@ class RunSpec:
     # ------------------------------------------------------------------ building
     @classmethod
     def create(cls, scene: str = "print", preset: str | None = None,
-               changes: dict | None = None) -> RunSpec:
-        """The scene's defaults, then the preset, then ``changes`` (dotted paths or flat
+               changes: dict | None = None, material: str | None = None) -> RunSpec:
+        """The scene's defaults, then the preset, then ``material`` (a shipped name or a
+        TOML file, :mod:`taichi_mex.materials`), then ``changes`` (dotted paths or flat
         names); validated. A change whose option declares ``implies`` also sets those
         options, unless ``changes`` sets them itself."""
         entry = scene_entry(scene)
@@ -243,16 +246,23 @@ class RunSpec:
                 options = _set(options, path.split(".")[1:], value, "scene.")
         defaults = entry.defaults(options)
         run = _merge(RunOptions(), defaults.get("run", {}), "run.")
-        material = _merge(Material(), defaults.get("material", {}), "material.")
+        mat = _merge(Material(), defaults.get("material", {}), "material.")
         run = _merge(run, preset_data.get("run", {}), "run.")
-        material = _merge(material, preset_data.get("material", {}), "material.")
+        mat = _merge(mat, preset_data.get("material", {}), "material.")
+        source = None
+        if material is not None:
+            from taichi_mex import materials
+
+            values, _sources = materials.read(material)
+            mat = _merge(mat, values, "material.")
+            source = str(material)
         for path, value in dotted.items():
             root, _, rest = path.partition(".")
             if root == "run":
                 run = _set(run, rest.split("."), value, "run.")
             elif root == "material":
-                material = _set(material, rest.split("."), value, "material.")
-        spec = cls(scene, options, run, material, preset)
+                mat = _set(mat, rest.split("."), value, "material.")
+        spec = cls(scene, options, run, mat, preset, source)
         spec.validate()
         return spec
 
@@ -291,7 +301,8 @@ class RunSpec:
         from taichi_mex import __version__
 
         return {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "taichi_mex": __version__,
-                "scene": self.scene, "preset": self.preset, "scene_options": asdict(self.options),
+                "scene": self.scene, "preset": self.preset, "material_source": self.material_source,
+                "scene_options": asdict(self.options),
                 "run": asdict(self.run), "material": asdict(self.material)}
 
     @classmethod
@@ -306,14 +317,15 @@ class RunSpec:
             raise UserInputError(f"This run description has format version {version!r}; this "
                                  f"taichi_mex reads up to {FORMAT_VERSION}. Update taichi_mex.")
         extra = set(data) - {"format", "format_version", "taichi_mex", "scene", "preset",
-                             "scene_options", "run", "material"}
+                             "material_source", "scene_options", "run", "material"}
         if extra:
             raise UserInputError(f"Unknown keys in the run description: {', '.join(sorted(extra))}.")
         scene = data.get("scene", "print")
         entry = scene_entry(scene)
         spec = cls(scene, _build(entry.options, data.get("scene_options", {}), "scene."),
                    _build(RunOptions, data.get("run", {}), "run."),
-                   _build(Material, data.get("material", {}), "material."), data.get("preset"))
+                   _build(Material, data.get("material", {}), "material."), data.get("preset"),
+                   data.get("material_source"))
         spec.validate()
         return spec
 

@@ -11,7 +11,7 @@ import logging
 import sys
 from pathlib import Path
 
-from taichi_mex import bundled
+from taichi_mex import bundled, materials
 from taichi_mex.app.parsing import Parser, add_spec_flags, spec_changes
 from taichi_mex.errors import SimulationDiverged, UserInputError
 from taichi_mex.options import PRESETS
@@ -40,6 +40,9 @@ def _add_common(p: Parser, out_default: str = "taichi_mex_out") -> None:
                         "other options given change that description")
     p.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="named parameter set: 'paper' = the seed paper's EDAC baseline")
+    p.add_argument("--material", default=None, metavar="NAME|FILE.toml",
+                   help=f"material: {', '.join(materials.known())} (properties and sources in "
+                        "taichi_mex/materials/), or your own TOML file of the same form")
 
 
 def spec_from_args(args, dests: set, scene: str) -> RunSpec:
@@ -47,11 +50,12 @@ def spec_from_args(args, dests: set, scene: str) -> RunSpec:
     if getattr(args, "gcode", None) is not None:
         changes["scene.gcode"] = str(bundled.resolve_gcode(args.gcode))
     if args.config is not None:
-        if args.preset:
-            raise UserInputError("--preset and --config both describe the whole run; give one.")
+        if args.preset or args.material:
+            raise UserInputError("--preset and --material cannot change a --config run; give "
+                                 "single options (--viscosity ...) or start without --config.")
         spec = RunSpec.load(args.config)
         return spec.with_changes(changes) if changes else spec
-    return RunSpec.create(scene, args.preset, changes)
+    return RunSpec.create(scene, args.preset, changes, material=args.material)
 
 
 def run_simulation(spec: RunSpec, out_dir: Path) -> int:
@@ -60,6 +64,11 @@ def run_simulation(spec: RunSpec, out_dir: Path) -> int:
     from taichi_mex.sim.simulation import Simulation
 
     sim = Simulation.from_spec(spec, out_dir=out_dir)
+    m = spec.material
+    eta = m.zero_shear_viscosity(m.extrusion_temperature_c)
+    print(f"material {m.name}" + (f" ({spec.material_source})" if spec.material_source else "")
+          + f": {m.density_kg_m3:g} kg/m^3, eta0 {eta:.4g} Pa s at {m.extrusion_temperature_c:g} degC "
+          f"({m.viscosity_model}), Tg {m.glass_transition_c:g} degC")
     print(f"estimate: {sim.describe_estimate()}")
     creeping = sim.describe_creeping()
     if creeping:

@@ -58,6 +58,8 @@ JOB_PARAMETERS: dict[str, Param] = {
     "scene": Param("a built-in scene instead of a print ('python -m taichi_mex scene --help'); "
                    "its own options as scene.OPTION, e.g. scene.radius_mm", (str,), "print"),
     "preset": Param("named parameter set from options.PRESETS (e.g. 'paper')", (str,), "run"),
+    "material": Param("a shipped material (pla, abs, petg) or a TOML file (relative to the "
+                      "study file) with Material's fields", (str,), "material"),
     "deposit_for_s": Param("stop this long (s) after the selected deposition starts (instead of "
                            "'until'; follows the start when the speed changes)", _NUM, "print"),
     "feed_rate_factor": Param("multiply every feed rate F of the G-code (nozzle speed; the "
@@ -220,7 +222,11 @@ def resolve(params: dict, base_dir=None) -> Resolved:
         if "scene.printer" in changes:
             changes["scene.printer"] = _printer_path(changes["scene.printer"], base_dir)
     changes.setdefault("run.progress", False)
-    spec = RunSpec.create(scene, params.get("preset"), changes)
+    material = params.get("material")
+    if material is not None and str(material).lower().endswith(".toml") and base_dir is not None \
+            and not Path(material).is_absolute():
+        material = str(Path(base_dir) / material)
+    spec = RunSpec.create(scene, params.get("preset"), changes, material=material)
     res = Resolved(params=params, spec=spec, analysis=params.get("analysis", True),
                    feed_rate_factor=float(params.get("feed_rate_factor", 1.0)),
                    flow_factor=float(params.get("flow_factor", 1.0)),

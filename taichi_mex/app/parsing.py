@@ -76,6 +76,7 @@ def add_spec_flags(parser: argparse.ArgumentParser, scene: str) -> set[str]:
             parse = f.metadata.get("parse")
             hint = typing.get_type_hints(_owner(path, scene))[f.name]
             group.add_argument(*flags, dest=path, default=argparse.SUPPRESS,
+                               action="append" if f.metadata.get("repeat") else "store",
                                type=_parsing(parse) if parse else _value_type(hint),
                                metavar=flags[0].lstrip("-").upper().replace("-", "_"),
                                help=help_text)
@@ -100,4 +101,4 @@ def _owner(path: str, scene: str):
 
 def spec_changes(args: argparse.Namespace, dests: set[str]) -> dict:
     """The options the user gave on the command line, as dotted paths."""
-    return {k: v for k, v in vars(args).items() if k in dests}
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in vars(args).items() if k in dests}

@@ -33,8 +33,8 @@ LADDERS = {
             ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
         ],
         "quick": [
-            ("dfsph dx=0.12", {"spacing_mm": 0.12, "deposit_for_s": 0.02}),
             ("dfsph dx=0.1", {"spacing_mm": 0.1, "deposit_for_s": 0.02}),
+            ("dfsph dx=0.067 (draft)", {"spacing_mm": 0.0667, "deposit_for_s": 0.02}),
         ],
     },
     "shear": {

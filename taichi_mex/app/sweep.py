@@ -478,6 +478,11 @@ def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int
         name = re.sub(r"[^A-Za-z0-9._-]", "_", f"plot_{metric}_vs_{param}.png")
         outcome.paths[f"plot {metric}:{param}"] = plot_metric(rows, metric, param, study.varied,
                                                              out_dir / name)
+    from taichi_mex.post.report import write_index
+
+    outcome.paths["index"] = write_index(
+        out_dir, f"sweep: {study.name}", outcome.paths["csv"],
+        [v for k, v in outcome.paths.items() if k.startswith("plot ")])
     outcome.wall_time_s = time.perf_counter() - t0
     return outcome
 

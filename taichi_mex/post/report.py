@@ -1,0 +1,240 @@
+"""``report.html``: one self-contained page per run (pictures inlined, no network), and an
+index page per sweep. Built from the files a run leaves, so it also works on old runs:
+``plan.json``, ``config.json``, ``summary.json``, ``mesostructure.json``, ``probes.csv`` and
+the PNGs under ``snapshots/``, ``sections/`` and the run folder."""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import json
+import math
+from pathlib import Path
+
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1100px;
+color:#222;padding:0 1em}h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.2em;margin-top:1.6em;
+border-bottom:1px solid #ddd;padding-bottom:.2em}.sub{color:#666}table{border-collapse:collapse;
+margin:.5em 0}td,th{border:1px solid #ddd;padding:.25em .6em;text-align:left;font-size:.92em}
+th{background:#f5f5f5}td.num{text-align:right;font-variant-numeric:tabular-nums}.bad{color:#b00}
+.ok{color:#070}figure{display:inline-block;margin:.5em;vertical-align:top}figure img{max-width:520px;
+border:1px solid #eee}figcaption{font-size:.85em;color:#555}pre{background:#f7f7f7;padding:.8em;
+overflow:auto;font-size:.8em;max-height:28em}details summary{cursor:pointer;color:#246}
+"""
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _num(value, digits: int = 4) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int):
+        return f"{value:,}"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return html.escape(str(value))
+
+
+def _table(rows, head=None) -> str:
+    out = ["<table>"]
+    if head:
+        out.append("<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>")
+    for row in rows:
+        cells = []
+        for k, cell in enumerate(row):
+            cls = ' class="num"' if k and isinstance(cell, (int, float)) else ""
+            cells.append(f"<td{cls}>{cell if isinstance(cell, str) and cell.startswith('<') else _num(cell)}</td>")
+        out.append("<tr>" + "".join(cells) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)
+
+
+def _img(path: Path, caption: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode()
+    return (f'<figure><img src="data:image/png;base64,{data}" alt="{html.escape(caption)}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def _verdict(ok: bool, text: str) -> str:
+    return f'<span class="{"ok" if ok else "bad"}">{html.escape(text)}</span>'
+
+
+def rounded_rectangle_width_mm(area_mm2: float, gap_mm: float) -> float:
+    """The slicer's bead width for a cross-section A at layer height g: W = A/g + (1 - pi/4) g
+    (a rectangle with semicircular sides; Comminal et al., Addit. Manuf. 20, 2018)."""
+    return area_mm2 / gap_mm + (1.0 - math.pi / 4.0) * gap_mm
+
+
+def _layer_height_mm(plan: dict | None, config: dict | None) -> float | None:
+    if not plan or not plan.get("layer_z_mm"):
+        return None
+    z = [0.0] + list(plan["layer_z_mm"])
+    layers = str(plan.get("selected_layers") or "1")
+    try:
+        first = int(layers.split(",")[0].split("-")[0])
+    except ValueError:
+        first = 1
+    first = min(max(first, 1), len(z) - 1)
+    return z[first] - z[first - 1]
+
+
+def _sections(meso: dict | None, plan, config) -> str:
+    if not meso or not meso.get("sections"):
+        return "<p>No mesostructure analysis for this run.</p>"
+    gap = _layer_height_mm(plan, config)
+    parts = []
+    for sec in meso["sections"]:
+        pos = sec.get("position", {})
+        rows = []
+        for b in sec.get("beads", []):
+            law = rounded_rectangle_width_mm(b["area_mm2"], gap) if gap else None
+            rows.append([str(b.get("bead_id")) + (" (substrate)" if b.get("substrate") else ""),
+                         b.get("width_mm"), law,
+                         None if not law else 100 * (b["width_mm"] / law - 1),
+                         b.get("height_mm"), None if not gap else 100 * (b["height_mm"] / gap - 1),
+                         b.get("area_mm2")])
+        where = f"{pos.get('axis', '?')} = {_num(pos.get('coordinate_mm'))} mm"
+        parts.append(f"<h3>Section at {where}</h3>")
+        parts.append(_table(rows, ["bead", "width mm", "rounded-rectangle width mm", "width vs law %",
+                                   "height mm", "height vs layer %", "area mm²"]))
+        parts.append(_table([
+            ["beads", sec.get("beads_count")],
+            ["mean neck between side-by-side beads (mm)", sec.get("mean_neck_side_mm")],
+            ["mean neck between layers (mm)", sec.get("mean_neck_layer_mm")],
+            ["void fraction", sec.get("void_fraction")], ["voids", sec.get("voids_count")]]))
+    if gap:
+        parts.append(f"<p class='sub'>Law: W = A/g + (1 − π/4) g with the bead's own area A and "
+                     f"the layer height g = {gap:.3g} mm (the slicer's rounded rectangle; Comminal "
+                     "et al., Addit. Manuf. 20, 2018). Creeping strands under a flat nozzle should "
+                     "sit within a few percent of it.</p>")
+    return "\n".join(parts)
+
+
+def _health(summary: dict) -> str:
+    lost = summary.get("particles_lost", 0)
+    rows = [
+        ["particles lost", _verdict(not lost, f"{lost}")],
+        ["deposited / commanded volume (mm³)",
+         f"{_num(summary.get('deposited_volume_mm3'))} / {_num(summary.get('commanded_volume_mm3'))}"],
+        ["density error, interior melt: mean / max",
+         f"{_num(100 * summary.get('density_error_mean', float('nan')), 3)} % / "
+         f"{_num(100 * summary.get('density_error_max', float('nan')), 3)} %"],
+        ["compression, all melt: mean / max (end); worst step",
+         f"{_num(100 * summary.get('compression_error_mean', float('nan')), 3)} % / "
+         f"{_num(100 * summary.get('compression_error_max', float('nan')), 3)} %; "
+         f"{_num(100 * summary.get('compression_error_max_run', float('nan')), 3)} %"],
+        ["pressure / viscosity iterations per step",
+         f"{_num(summary.get('pressure_iterations_per_step'))} / {_num(summary.get('viscosity_iterations_per_step'))}"],
+        ["worst viscous residual", summary.get("viscosity_residual_worst")],
+        ["time-step halvings", summary.get("time_step_halvings")],
+        ["paired fraction (SPH pairing)", summary.get("paired_fraction")],
+    ]
+    rows = [r for r in rows if "–" not in str(r[1]) or r[0] == "particles lost"]
+    return _table(rows)
+
+
+def _thermal(summary: dict) -> str:
+    keys = [k for k in summary if k.startswith(("temperature_", "cooling", "bead_cooling"))]
+    if not keys:
+        return "<p>Heat was off in this run.</p>"
+    return _table([[k, summary[k]] for k in sorted(keys) if not isinstance(summary[k], (list, dict))])
+
+
+def _estimate(summary: dict) -> str:
+    est = summary.get("estimate") or {}
+    rows = [["particles", est.get("particles"), summary.get("particles_active")],
+            ["time steps", est.get("steps_estimate"), summary.get("steps")],
+            ["wall time (s)", est.get("wall_time_estimate_s"), summary.get("wall_time_s")]]
+    return _table(rows, ["", "estimated before the run", "measured"])
+
+
+def _plan(plan: dict | None) -> str:
+    if not plan:
+        return "<p>No plan (not a G-code print).</p>"
+    keep = ["gcode", "printer", "nozzle_diameter_mm", "print_time_s", "n_layers", "selected_layers",
+            "selected_time_window_s", "selected_region_mm", "selected_extruded_volume_mm3",
+            "extruded_volume_mm3"]
+    return _table([[k, json.dumps(plan[k]) if isinstance(plan.get(k), list) else plan.get(k)]
+                   for k in keep if k in plan])
+
+
+def write_report(run_dir) -> Path:
+    """Write ``run_dir/report.html`` from the run's files; returns its path."""
+    run_dir = Path(run_dir)
+    summary = _read_json(run_dir / "summary.json") or {}
+    config = _read_json(run_dir / "config.json")
+    plan = _read_json(run_dir / "plan.json")
+    meso = _read_json(run_dir / "mesostructure.json")
+    scene = summary.get("scene", (config or {}).get("scene", "?"))
+    material = ((config or {}).get("material") or {}).get("name", "")
+    state = ("interrupted" if summary.get("interrupted") else
+             "failed: " + summary["error"] if summary.get("error") else "finished")
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>taichi_mex: {html.escape(run_dir.name)}"
+             f"</title><style>{_CSS}</style></head><body>",
+             f"<h1>{html.escape(run_dir.name)}</h1>",
+             f"<p class='sub'>{html.escape(str(scene))} · {html.escape(material)} · "
+             f"{html.escape(str(summary.get('scheme', '')))} at {_num(summary.get('spacing_mm'))} mm · "
+             f"{_num(summary.get('simulated_time_s'))} s simulated in {_num(summary.get('wall_time_s'))} s"
+             f" · {html.escape(state)}</p>"]
+    pictures = sorted((run_dir / "snapshots").glob("final_*.png")) if (run_dir / "snapshots").is_dir() else []
+    if pictures:
+        parts.append("<h2>Snapshots</h2>" + "".join(_img(p, p.stem.replace("_", " ")) for p in pictures))
+    parts.append("<h2>Bead shapes, necks and voids</h2>" + _sections(meso, plan, config))
+    sections = sorted((run_dir / "sections").glob("*.png")) if (run_dir / "sections").is_dir() else []
+    parts.extend(_img(p, f"cross-section {p.stem}") for p in sections)
+    parts.append("<h2>Solver health</h2>" + _health(summary))
+    parts.append("<h2>Heat</h2>" + _thermal(summary))
+    plots = [p for p in sorted(run_dir.glob("*.png"))]
+    if plots:
+        parts.append("<h2>Plots</h2>" + "".join(_img(p, p.stem.replace("_", " ")) for p in plots))
+    if (run_dir / "animation.gif").is_file():
+        data = base64.b64encode((run_dir / "animation.gif").read_bytes()).decode()
+        parts.append(f"<h2>Animation</h2><img src='data:image/gif;base64,{data}' alt='animation'>")
+    elif (run_dir / "animation.mp4").is_file():
+        data = base64.b64encode((run_dir / "animation.mp4").read_bytes()).decode()
+        parts.append("<h2>Animation</h2><video controls loop width='720' "
+                     f"src='data:video/mp4;base64,{data}'></video>")
+    parts.append("<h2>Plan, and the estimate against what was measured</h2>" + _plan(plan) + _estimate(summary))
+    parts.append("<h2>Configuration</h2><details><summary>config.json (re-run with "
+                 "<code>python -m taichi_mex --config config.json --out DIR</code>)</summary><pre>"
+                 + html.escape(json.dumps(config, indent=2)) + "</pre></details>")
+    parts.append("<details><summary>summary.json</summary><pre>"
+                 + html.escape(json.dumps(summary, indent=2, default=str)) + "</pre></details>")
+    parts.append("</body></html>")
+    path = run_dir / "report.html"
+    path.write_text("\n".join(parts))
+    return path
+
+
+def write_index(out_dir, title: str, results_csv: Path, plots: list[Path]) -> Path:
+    """A sweep's ``index.html``: the results table, its plots and links to each run's report."""
+    out_dir = Path(out_dir)
+    with Path(results_csv).open() as fh:
+        rows = list(csv.DictReader(fh))
+    head = list(rows[0].keys()) if rows else []
+    body = ["<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for row in rows:
+        cells = []
+        for h in head:
+            text = html.escape(row.get(h, ""))
+            if h == "run" and (out_dir / "runs" / row[h] / "report.html").is_file():
+                text = f"<a href='runs/{text}/report.html'>{text}</a>"
+            cells.append(f"<td>{text}</td>")
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    body.append("</table>")
+    page = (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+            f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"
+            f"<p class='sub'>{len(rows)} runs; each run's own report is linked from its name.</p>"
+            + "\n".join(body) + "".join(_img(p, p.stem) for p in plots if p.is_file())
+            + "</body></html>")
+    path = out_dir / "index.html"
+    path.write_text(page)
+    return path
