@@ -296,7 +296,7 @@ class Material:
     emissivity: float = opt(0.92, help="surface emissivity (-)", check=Range(0.0, 1.0))
     solid_density_kg_m3: float = opt(1240.0, help="room-temperature solid density (kg/m^3; for "
                                      "reports: the melt density sets the mass)", check=Positive())
-    surface_tension_n_m: float = opt(0.0, help="melt surface tension (N/m; recorded, not yet "
+    surface_tension_n_m: float = opt(0.035, help="melt surface tension (N/m; recorded, not yet "
                                      "modelled)", check=NonNegative())
 
     def zero_shear_viscosity(self, temperature_c: float) -> float:
@@ -431,8 +431,9 @@ class DFSPHOptions:
     no_slip: bool = opt(True, help="plate and nozzle are no-slip walls for the viscosity solve",
                         check=Flag())
     relative_residual: float | None = opt(
-        0.1, help="the density solve also runs until its preconditioned residual norm has fallen "
-        "by this factor (-; CG only; None: stop on the absolute errors alone). The summed "
+        0.1, help="outside creeping steps the density solve also runs until its preconditioned "
+        "residual norm has fallen by this factor (-; CG only; None: stop on the absolute errors "
+        "alone). The summed "
         "pressure is a running sum of the solves' increments; with absolute stops alone a "
         "smooth error of it (the hydrostatic gradient) leaves too little density error to be "
         "corrected, and which part of it survives depended on rounding (the hydrostatic "
