@@ -535,6 +535,11 @@ class RunOptions:
                            check=Points(), flag="--probe", parse=parse_point, repeat=True)
     probe_every_s: float | None = opt(None, help="probe sampling interval (s; None: 200 samples "
                                       "over the run)", check=Either(NONE, Positive()))
+    animation: bool = opt(False, help="write animation.mp4 of the deposition (a GIF where no "
+                          "encoder is available)", check=Flag(), flag="--animation", const=True)
+    animation_frames: int = opt(60, help="frames of the animation, when output_every_s is not "
+                                "given (it then also sets the HDF5 frames)",
+                                check=Range(2, 10000, integer=True))
     plate_layers: int = opt(3, help="particle layers of the build plate",
                             check=Range(1, 50, integer=True))
     margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",
