@@ -8,7 +8,7 @@ which is the tensile clumping that paired 28 % of the single bead's melt."""
 import numpy as np
 import pytest
 
-from taichi_mex.options import Material, RunOptions
+from taichi_mex.options import DFSPHOptions, DFSPHStabilisers, Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
 from taichi_mex.sim.simulation import Simulation
 from taichi_mex.core.state import FLUID
@@ -16,11 +16,13 @@ from taichi_mex.core.state import FLUID
 DT = 1e-3  # with 1e4 Pa s at 1 mm spacing: nu dt / dx^2 = 1e4, a creeping step
 
 
-def _creeping_tank(width_mm: float, height_mm: float) -> Simulation:
-    """A built weightless tank of 1e4 Pa s melt at 1 mm spacing."""
+def _creeping_tank(width_mm: float, height_mm: float, **stabilisers) -> Simulation:
+    """A built weightless tank of 1e4 Pa s melt at 1 mm spacing (stabilisers: fields of
+    DFSPHStabilisers; weightless, the tank has no speed scale of its own)."""
+    dfsph = DFSPHOptions(stabilisers=DFSPHStabilisers(**stabilisers))
     sim = Simulation(HydrostaticScene(width_mm=width_mm, height_mm=height_mm, until_s=0.1),
                      RunOptions(scheme="dfsph", spacing_mm=1.0, progress=False, snapshots=False,
-                                gravity_m_s2=0.0),
+                                gravity_m_s2=0.0, dfsph=dfsph),
                      Material(name="creeping melt", density_kg_m3=1000.0, viscosity_pa_s=1e4))
     sim.build()
     return sim
@@ -28,9 +30,8 @@ def _creeping_tank(width_mm: float, height_mm: float) -> Simulation:
 
 def _kick_of_uniform_tension(form: str):
     """Velocity change of deep-interior melt under k = -1 everywhere, and grad C there."""
-    sim = _creeping_tank(9, 9)
+    sim = _creeping_tank(9, 9, tension_form=form)
     d = sim.solver.dfsph
-    d.tension_form = form
     dx = sim.run_opts.spacing_m
     n = sim.state.n
     x = sim.state.x.to_numpy()
@@ -83,7 +84,7 @@ def test_the_difference_form_is_refused_outside_creeping_steps():
     sim.build()
     d = sim.solver.dfsph
     assert not d.creeping(DT)  # nu dt / dx^2 = 1
-    assert d.creeping(DT * 10 * d.creeping_diffusion)
+    assert d.creeping(DT * 10 * sim.run_opts.dfsph.stabilisers.creeping_diffusion)
     assert sim.solver._divergence_solve_wanted(DT)
 
 
@@ -98,9 +99,11 @@ def test_divergence_solve_option_is_validated(bad):
 
 def _contraction_speed(dt: float, closing_speed: float) -> float:
     """Fastest melt after one density solve on a creeping melt stretched 5 % upwards."""
-    sim = _creeping_tank(7, 9)
+    # the closing speed is closing_speed_factor times the speed scale; nothing else acts
+    sim = _creeping_tank(7, 9, speed_scale_m_s=closing_speed, closing_speed_factor=1.0,
+                         eject_speed_factor=0.0, clamp_speed_factor=0.0)
     d = sim.solver.dfsph
-    d.closing_speed = closing_speed  # before the solve's kernels compile
+    assert d.closing_speed == closing_speed
     n = sim.state.n
     x = sim.state.x.to_numpy()
     fluid = sim.state.phase.to_numpy()[:n] == FLUID
@@ -133,11 +136,12 @@ def test_tension_closes_gaps_no_faster_than_the_closing_speed():
 
 
 def test_a_flung_droplet_leaves_the_run_as_lost_melt():
-    """Isolated melt (<= DFSPH.isolated_neighbours neighbours) faster than the ejection speed
+    """Isolated melt (<= stabilisers.isolated_neighbours neighbours) faster than the ejection speed
     is dropped and counted, instead of setting the time step or tripping the blow-up check."""
-    sim = _creeping_tank(7, 9)
+    sim = _creeping_tank(7, 9, speed_scale_m_s=0.1, eject_speed_factor=1.0,
+                         closing_speed_factor=0.0, clamp_speed_factor=0.0)
     d = sim.solver.dfsph
-    d.eject_speed = 0.1  # m/s; weightless, the tank has no speed scale of its own
+    assert d.eject_speed == pytest.approx(0.1)  # m/s
     n = sim.state.n
     x = sim.state.x.to_numpy()
     v = sim.state.v.to_numpy()
@@ -171,9 +175,9 @@ def test_creeping_melt_is_slowed_to_the_clamp_speed_and_a_mass_kick_stops_the_ru
     a blow-up."""
     from taichi_mex.errors import SimulationDiverged
 
-    sim = _creeping_tank(7, 9)
-    sim.solver.dfsph.clamp_speed = 1.0  # m/s
-    sim.solver.clamp_alarm = alarm
+    sim = _creeping_tank(7, 9, speed_scale_m_s=1.0, clamp_speed_factor=1.0, clamp_alarm=alarm,
+                         closing_speed_factor=0.0, eject_speed_factor=0.0)
+    assert sim.solver.dfsph.clamp_speed == 1.0  # m/s
     sim.state.v.fill(0.0)
     sim.lost_particles = 0
     if alarm < 0.05:

@@ -68,6 +68,8 @@ class Simulation:
         self.plan = scene.plan(self.run_opts, self.material)
         self.creeping = self._creeping_numbers()
         self.viscosity_scale = self.creeping["viscosity_scale"]
+        self._check_probes()
+        self.probes = None
         self.out_dir = Path(out_dir) if out_dir else None
         self._pairing = None
         self.estimate = self._estimate()
@@ -93,6 +95,15 @@ class Simulation:
         self.history: list[dict] = []
 
     # ----------------------------------------------------------------- planning
+    def _check_probes(self) -> None:
+        lo, hi = self.plan.domain_lo_m * 1e3, self.plan.domain_hi_m * 1e3
+        for point in self.run_opts.probes_mm:
+            if np.any(np.asarray(point) < lo) or np.any(np.asarray(point) > hi):
+                raise UserInputError(
+                    f"Probe ({point[0]:g}, {point[1]:g}, {point[2]:g}) mm lies outside the simulated "
+                    f"domain x {lo[0]:.3g}..{hi[0]:.3g}, y {lo[1]:.3g}..{hi[1]:.3g}, z "
+                    f"{lo[2]:.3g}..{hi[2]:.3g} mm; move it inside (the plan shows the selection).")
+
     def _creeping_numbers(self) -> dict:
         """Reynolds number Re = rho U L / eta, gravity number G = rho g L^2 / (eta U) and the
         gravity slump over the run S = rho g L T / eta (strain a layer of thickness L would
@@ -248,7 +259,8 @@ class Simulation:
         if "thermal" in self.plan.needs or run.thermal.enabled:
             from taichi_mex.physics.thermal import Thermal
 
-            self.thermal = Thermal(self)
+            self.thermal = Thermal(self.state, self.kernel, dx, self.material, run.thermal,
+                                   clock=lambda: self.time_s)
         self.solidification = None
         if self.thermal is not None and run.scheme != "static":
             from taichi_mex.physics.solidification import Solidification
@@ -265,9 +277,18 @@ class Simulation:
         self.viscosity.attach(self.grid, self.kernel)
         from taichi_mex.physics.surface import SurfaceDetector
 
-        self.surface = SurfaceDetector(self)
-        self.solver = SOLVERS[run.scheme](self)
-        self.surface.attach(self.grid, self.kernel)
+        self.surface = SurfaceDetector(self.state, dx, self.grid, self.kernel)
+        if self.thermal is not None:
+            self.thermal.attach(self.grid, self.surface)
+        from taichi_mex.sim.solver import StepHooks
+
+        hooks = StepHooks(refresh=self.refresh, refresh_lists=self.refresh_lists,
+                          heat_step=self.heat_step, move_boundaries=self.move_boundaries,
+                          diverged=self.diverged, extra_dt_limits=self.extra_dt_limits,
+                          boundary_speed=self.boundary_speed, steps=lambda: self.steps)
+        self.solver = SOLVERS[run.scheme](self.state, self.grid, self.kernel, self.viscosity,
+                                          self.material.density_kg_m3, run, hooks,
+                                          self.plan.speed_scale_m_s, self.plan.max_dt_s)
         # DFSPH calibrates the particle volume so a rest lattice has rho = rho0 exactly
         self.mass = getattr(self.solver, "particle_mass", self.material.density_kg_m3 * dx**3)
         self.inlet = None
@@ -365,7 +386,7 @@ class Simulation:
         run = self.run_opts
         t_end = self.plan.t_end_s if until_s is None else min(until_s, self.plan.t_end_s)
         span = max(t_end - self.plan.t_start_s, 1e-12)
-        every = run.output_every_s or span / 10.0
+        every = run.output_every_s or span / (run.animation_frames if run.animation else 10.0)
         self.lost_particles = 0
         self._inlet_retired = False
         writer = self._open_writer()
@@ -373,6 +394,8 @@ class Simulation:
         next_out = t
         snap_every = run.snapshot_every_s
         next_snap = t + snap_every if snap_every else np.inf
+        probe_every = run.probe_every_s or span / 200.0
+        next_probe = t if run.probes_mm else np.inf
         interrupted = False
         error = None
         wall0 = time.perf_counter()
@@ -389,6 +412,9 @@ class Simulation:
                 if writer is not None and t >= next_snap - 1e-12:
                     self.snapshots_or_warn(f"t{t:.5f}s")
                     next_snap += snap_every
+                if t >= next_probe - 1e-12:
+                    self._sample_probes(t)
+                    next_probe += probe_every
                 if t >= t_end - 1e-12:
                     break
                 dt, dt_limits = self.solver.time_step()
@@ -453,6 +479,15 @@ class Simulation:
             fields.append("temperature")
         return fields
 
+    def _sample_probes(self, t: float) -> None:
+        if self.probes is None:
+            from taichi_mex.post.probes import ProbeRecorder
+
+            self.probes = ProbeRecorder(self.run_opts.probes_mm, self.kernel.W_np, self.kernel.H)
+        temperature = self.state.numpy("temperature") if self.thermal is not None else None
+        self.probes.sample(t, self.state.numpy("position"), self.state.numpy("velocity"),
+                           temperature)
+
     def frame_data(self) -> dict:
         phase = self.state.phase.to_numpy()[: self.state.n]
         keep = phase != PLATE
@@ -500,9 +535,19 @@ class Simulation:
             summary["bead_height_mm"] = first.get("mean_height_mm")
             summary["bead_area_mm2"] = first.get("mean_area_mm2")
             summary["void_fraction"] = first.get("void_fraction")
+        if self.probes is not None:
+            self.probes.write(self.out_dir)
         (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
         if self.run_opts.snapshots:
             self.snapshots_or_warn("final")
+        if self.run_opts.animation:
+            try:
+                self.animation()
+            except Exception as exc:  # noqa: BLE001 - a view of the results, not the results
+                log.warning("animation skipped: %s", exc)
+        from taichi_mex.post.report import write_report
+
+        write_report(self.out_dir)
 
     def snapshots_or_warn(self, tag: str) -> None:
         """Snapshots are a view of the results, not the results: a rendering failure is
@@ -521,7 +566,29 @@ class Simulation:
             field = "density"
         return snapshot_set(data, self.out_dir / "snapshots", tag, field, self.run_opts.spacing_m,
                             self.plan.section_point_m, self.plan.section_direction,
-                            self.state.numpy("position", PLATE))
+                            self.picture_reference(), self.time_s)
+
+    def picture_reference(self) -> dict:
+        """What the pictures' colour ranges are set against."""
+        ref = {"density_kg_m3": self.material.density_kg_m3}
+        if self.thermal is not None:
+            th = self.run_opts.thermal
+            ref["temperature_range_c"] = (min(th.plate_temperature_c, th.ambient_c),
+                                          self.material.extrusion_temperature_c)
+        return ref
+
+    def animation(self) -> Path:
+        """animation.mp4 (or .gif) of the frames written so far."""
+        from taichi_mex.post.output import read_frames
+        from taichi_mex.post.render import write_animation
+
+        field = self.run_opts.snapshot_field
+        frames = read_frames(self.out_dir / "particles.h5")
+        if frames and field not in frames[0]:
+            field = "density"
+        return write_animation(frames, self.out_dir / "animation.mp4", field,
+                               self.run_opts.spacing_m, self.plan.section_direction,
+                               self.picture_reference())
 
     # ----------------------------------------------------------------- results
     def density_errors(self) -> dict:
@@ -541,7 +608,7 @@ class Simulation:
                     "compression_error_mean": 0.0, "compression_error_max": 0.0}
         rel = rho / self.material.density_kg_m3 - 1.0
         err = np.abs(rel)
-        interior = interior_mask(self)
+        interior = interior_mask(self.surface)
         core = err[interior] if interior.any() else err
         compression = np.maximum(rel, 0.0)
         return {"density_error_mean": float(core.mean()), "density_error_max": float(core.max()),
@@ -585,6 +652,8 @@ class Simulation:
             "precision": self.run_opts.precision,
             "neighbour_rebuilds": int(self.grid.rebuilds),
         }
+        out["estimate"] = {k: self.estimate[k] for k in ("particles", "steps_estimate",
+                                                         "wall_time_estimate_s", "memory_bytes")}
         if self.plan.commanded_volume_m3 is not None:
             out["commanded_volume_mm3"] = float(self.plan.commanded_volume_m3(self.time_s)) * 1e9
         if self.inlet is not None:

@@ -1,4 +1,12 @@
-"""One time step per scheme: the enabled methods in the order their papers give."""
+"""One time step per scheme: the enabled methods in the order their papers give.
+
+A solver receives the particle state, the neighbour grid, the kernel, the melt viscosity, the
+run options and the scene's scales, and a :class:`StepHooks`: the few services of the run loop
+around it that a step calls (moving walls, rebuilding lists, heat, reporting a blow-up). It
+never holds the Simulation. Every solver class takes the same arguments."""
+
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -7,6 +15,33 @@ from taichi_mex.physics.dfsph import DFSPH
 from taichi_mex.physics.edac import EDAC
 from taichi_mex.physics.viscosity_weiler2018 import ImplicitViscosity
 from taichi_mex.core.state import FLUID, FluidIndex
+
+
+@dataclass
+class StepHooks:
+    """The run loop's services a solver's step calls (sim/simulation.py provides them).
+
+    refresh(t, fluid_moved_m=inf): move the walls to time t, rebuild the neighbour lists when
+        they may be stale (fluid moved fluid_moved_m since the last rebuild), update the
+        viscosity;
+    refresh_lists(): re-sort and rebuild the neighbour lists now, update the viscosity;
+    heat_step(dt): advance temperature (and solidification) by dt, where lists and densities
+        are current; a no-op without heat;
+    move_boundaries(t): move the nozzle and the bore's melt column to time t;
+    diverged(t, what): stop the run as blown up at time t (raises SimulationDiverged);
+    extra_dt_limits(): time-step limits of optional physics, {name: s};
+    boundary_speed(): the fastest moving wall, m/s;
+    steps(): steps taken so far (for per-step diagnostics).
+    """
+
+    refresh: Callable
+    refresh_lists: Callable
+    heat_step: Callable
+    move_boundaries: Callable
+    diverged: Callable
+    extra_dt_limits: Callable
+    boundary_speed: Callable
+    steps: Callable
 
 
 class EDACSolver:
@@ -22,38 +57,41 @@ class EDACSolver:
     #: that lists built with it last dozens of steps
     list_skin = 0.15
 
-    def __init__(self, sim):
-        self.sim = sim
-        opts = sim.run_opts
-        self.edac = EDAC(sim.state, sim.grid, sim.kernel, sim.viscosity, opts.edac,
-                         opts.gravity_m_s2, sim.material.density_kg_m3)
+    def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+        self.state = state
+        self.hooks = hooks
+        self.viscosity = viscosity
+        self.rho0 = float(rho0)
+        self.edac = EDAC(state, grid, kernel, viscosity, run.edac, run.gravity_m_s2, rho0)
         self.t_eval = -np.inf
         self.stats = {}
 
     def start(self, t: float) -> None:
-        self.sim.refresh(t)
+        self.hooks.refresh(t)
         self._check(self.edac.evaluate(), t)
         self.t_eval = t
 
     def time_step(self) -> tuple[float, dict]:
-        nu = self.sim.viscosity.max_value() / self.sim.material.density_kg_m3
+        nu = self.viscosity.max_value() / self.rho0
         _, limits = self.edac.time_step(nu)
-        limits.update(self.sim.extra_dt_limits())  # heat's diffusion limit, when heat is on
+        limits.update(self.hooks.extra_dt_limits())  # heat's diffusion limit, when heat is on
         return min(limits.values()), limits
 
     def step(self, t: float, dt: float) -> float:
         e = self.edac
-        moved = e.predict(self.sim.state.n, 0.5 * dt, self.t_eval)
-        self.sim.refresh(t + 0.5 * dt, moved)
+        h = self.hooks
+        moved = e.predict(self.state.n, 0.5 * dt, self.t_eval)
+        h.refresh(t + 0.5 * dt, moved)
         self.t_eval = t + 0.5 * dt
         self._check(e.evaluate(dt, self.t_eval), t + dt)
-        self.sim.heat_step(dt)  # lists and densities are those of the midpoint state
-        self.sim.move_boundaries(t + dt)
+        h.heat_step(dt)  # lists and densities are those of the midpoint state
+        h.move_boundaries(t + dt)
         return dt
 
     def _check(self, nonfinite: int, t: float) -> None:
         if nonfinite:
-            self.sim.diverged(t, f"{nonfinite} melt particles have non-finite velocities")
+            self.hooks.diverged(t, f"{nonfinite} melt particles have non-finite velocities")
 
     def max_speed(self) -> float:
         return self.edac.extremes[0]
@@ -86,27 +124,34 @@ class DFSPHSolver:
     #: the implicit viscosity caches one coefficient per neighbour-list slot
     cached_per_neighbour = 1
 
-    def __init__(self, sim):
-        self.sim = sim
-        run = sim.run_opts
+    def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+        """speed_scale_m_s: the scene's speed scale (its fastest nozzle move; the creeping
+        stabilisers scale with it); max_dt_s: the scene's largest step (None: the option's)."""
+        self.state = state
+        self.hooks = hooks
         self.opts = run.dfsph
-        rho0 = sim.material.density_kg_m3
-        self.fluid = FluidIndex(sim.state)
-        self.dfsph = DFSPH(sim.state, sim.grid, sim.kernel, run.dfsph, rho0, run.spacing_m,
-                           sim.viscosity, sim.plan.speed_scale_m_s)
+        # a scene of slow creeping flow may allow longer steps than a print
+        self.max_dt = float(max_dt_s or run.dfsph.max_dt_s)
+        self.fluid = FluidIndex(state)
+        self.dfsph = DFSPH(state, grid, kernel, run.dfsph, rho0, run.spacing_m, viscosity,
+                           speed_scale_m_s)
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
-        self.visc = ImplicitViscosity(sim.state, sim.grid, sim.kernel, sim.viscosity,
-                                      self.particle_mass, rho0, run.spacing_m, run.dfsph.viscosity_tolerance,
+        self.visc = ImplicitViscosity(state, grid, kernel, viscosity, self.particle_mass, rho0,
+                                      run.spacing_m, run.dfsph.viscosity_tolerance,
                                       run.dfsph.viscosity_max_iterations, self.fluid,
-                                      run.dfsph.no_slip)
+                                      run.dfsph.no_slip, run.dfsph.cg_chunk)
+        self.max_travel = float(run.dfsph.max_travel_spacings)
+        self.retries = int(run.dfsph.step_retries)
+        self.clamp_alarm = float(run.dfsph.stabilisers.clamp_alarm)
         self.vmax = 0.0
         self.dx = run.spacing_m
         self.halvings = 0
         self.corrections = 0
         self.ejected = 0
         self.clamped = 0
-        cap = sim.state.capacity
+        cap = state.capacity
         self.saved_v = ti.Vector.field(3, float, shape=cap)
         self.saved_k = ti.Vector.field(2, float, shape=cap)
         self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
@@ -122,51 +167,46 @@ class DFSPHSolver:
 
     def time_step(self) -> tuple[float, dict]:
         o = self.opts
-        speed = max(self.vmax, self.sim.boundary_speed(), 1e-6)
-        # a scene of slow creeping flow may allow longer steps than a print
-        max_dt = self.sim.plan.max_dt_s or o.max_dt_s
-        limits = {"cfl": o.cfl * 0.4 * self.sim.run_opts.spacing_m / speed, "max": max_dt}
-        limits.update(self.sim.extra_dt_limits())
+        speed = max(self.vmax, self.hooks.boundary_speed(), 1e-6)
+        limits = {"cfl": o.cfl * 0.4 * self.dx / speed, "max": self.max_dt}
+        limits.update(self.hooks.extra_dt_limits())
         return min(limits.values()), limits
 
     @ti.kernel
     def _gravity(self, n: ti.i32, dt: float):
         for i in range(n):
-            if self.sim.state.phase[i] == FLUID:
-                self.sim.state.v[i] += dt * self.g
+            if self.state.phase[i] == FLUID:
+                self.state.v[i] += dt * self.g
 
-    #: a step whose pressure solve leaves melt moving more than this many spacings is
-    #: redone with half the time step (the CFL bound uses the velocities before the solve)
-    max_travel = 0.5
-    #: a step that slows more than this fraction of the melt to DFSPH.clamp_speed blew up
-    #: (the first melt squeezed under the tip at a 0.1 mm layer slows 11 % in one step, and
-    #: that run then ends with 1 % compression: stability case 'layer 0.25 D')
-    clamp_alarm = 0.25
-    retries = 4
+    # DFSPHOptions.max_travel_spacings: a step whose pressure solve leaves melt moving more
+    # than this many spacings is redone with half the time step (the CFL bound uses the
+    # velocities before the solve). stabilisers.clamp_alarm = 0.25: the first melt squeezed
+    # under the tip at a 0.1 mm layer slows 11 % in one step, and that run then ends with 1 %
+    # compression (stability case 'layer 0.25 D').
 
     @ti.kernel
     def _save(self, n: ti.i32):
         for i in range(n):
-            self.saved_v[i] = self.sim.state.v[i]
+            self.saved_v[i] = self.state.v[i]
             self.saved_k[i] = ti.Vector([self.dfsph.kappa[i], self.dfsph.kappa_v[i]])
             self.saved_vdiff[i] = self.visc.vdiff[i]
 
     @ti.kernel
     def _restore(self, n: ti.i32):
         for i in range(n):
-            self.sim.state.v[i] = self.saved_v[i]
+            self.state.v[i] = self.saved_v[i]
             self.dfsph.kappa[i] = self.saved_k[i][0]
             self.dfsph.kappa_v[i] = self.saved_k[i][1]
             self.visc.vdiff[i] = self.saved_vdiff[i]
 
     def step(self, t: float, dt: float) -> float:
-        sim = self.sim
-        sim.refresh_lists()
-        n = sim.state.n
+        h = self.hooks
+        h.refresh_lists()
+        n = self.state.n
         d = self.dfsph
         d.prepare(n)
         self._record_peak(float(d.rho_peak[None]) / d.rho0 - 1.0)
-        sim.heat_step(dt)  # at x_n, with this step's lists and densities
+        h.heat_step(dt)  # at x_n, with this step's lists and densities
         nf = self.fluid.update()  # after solidification too
         d.rows.update()
         self._save(n)
@@ -204,17 +244,18 @@ class DFSPHSolver:
         self.ejected += int(out[2])
         self.clamped += int(out[3])
         if out[3] > max(self.clamp_alarm * nf, 10):
-            sim.diverged(t + dt, f"{int(out[3])} of {nf} melt particles moved faster than "
-                                 f"{d.clamp_speed:.3g} m/s in one creeping step (the clamp speed, "
-                                 "DFSPH.clamp_speed_factor times the nozzle's fastest move)")
+            h.diverged(t + dt, f"{int(out[3])} of {nf} melt particles moved faster than "
+                               f"{d.clamp_speed:.3g} m/s in one creeping step (the clamp speed, "
+                               "DFSPHOptions.stabilisers.clamp_speed_factor times the nozzle's "
+                               "fastest move)")
         if out[1] > 0:
-            sim.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
+            h.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                  "the pressure solve")
         self.last = {"density_iterations": ip, "viscosity_iterations": ik, "density_error": err,
                      "viscosity_residual": res, "dt": dt,
                      # the densest melt this step leaves, summed at the new positions
                      "moved_compression": moved}
-        sim.move_boundaries(t + dt)
+        h.move_boundaries(t + dt)
         return dt
 
     def _record_peak(self, compression: float) -> None:
@@ -235,7 +276,7 @@ class DFSPHSolver:
         return self.vmax
 
     def diagnostics(self) -> dict:
-        steps = max(self.sim.steps, 1)
+        steps = max(self.hooks.steps(), 1)
         return {
             "pressure_iterations_per_step": self.totals["density_iterations"] / steps,
             "divergence_iterations_per_step": self.totals["divergence_iterations"] / steps,
@@ -260,20 +301,21 @@ class StaticSolver:
     name = "static"
     list_skin = 0.0
 
-    def __init__(self, sim):
-        self.sim = sim
-        self._listed = False
+    def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+        self.hooks = hooks
+        self.max_dt = float(max_dt_s or 1.0)
 
     def start(self, t: float) -> None:
-        self.sim.refresh_lists()
+        self.hooks.refresh_lists()
 
     def time_step(self) -> tuple[float, dict]:
-        limits = dict(self.sim.extra_dt_limits())
-        limits.setdefault("max", self.sim.plan.max_dt_s or 1.0)
+        limits = dict(self.hooks.extra_dt_limits())
+        limits.setdefault("max", self.max_dt)
         return min(limits.values()), limits
 
     def step(self, t: float, dt: float) -> float:
-        self.sim.heat_step(dt)
+        self.hooks.heat_step(dt)
         return dt
 
     def max_speed(self) -> float:
