@@ -157,6 +157,7 @@ SCHEMES = ("edac", "dfsph", "static")
 VISCOSITY_MODELS = ("newtonian", "arrhenius", "cross_wlf")
 ARCHES = ("cpu", "gpu")
 PRECISIONS = ("f32", "f64")
+PICTURE_FIELDS = ("density", "pressure", "velocity", "temperature", "bead_id", "phase")
 
 #: named resolutions for 0.2 mm layers (3, 4 and 6 particles across the layer height), picked
 #: from the measured trade table (validation/trade); ``--resolution NAME`` or a spacing in mm
@@ -526,8 +527,9 @@ class RunOptions:
     snapshot_every_s: float | None = opt(
         None, help="also write PNG snapshots every this many simulated seconds (None: at the "
         "end only)", check=Either(NONE, Positive()), flag="--snapshot-every")
-    snapshot_field: str = opt("density", help="field the snapshots are coloured by (density, "
-                              "pressure, velocity, temperature, ...)", check=Text(), flag="--field")
+    snapshot_field: str = opt("density", help="field the pictures are coloured by: density, "
+                              "pressure, velocity, temperature (with heat), bead_id or phase",
+                              check=OneOf(*PICTURE_FIELDS), flag="--field")
     snapshots: bool = opt(True, help="write PNG snapshots", check=Flag(), flag="--no-snapshots",
                           const=False, names=("snapshots",), flag_help="skip the PNG snapshots")
     probes_mm: tuple = opt((), help="points (x, y, z in mm, the G-code's coordinates) where "

@@ -30,6 +30,9 @@ def print_parser() -> tuple[Parser, set]:
                    help=f"G-code file or bundled name (default: {bundled.DEFAULT_GCODE})")
     _add_common(p)
     p.add_argument("--dry-run", action="store_true", help="plan only: print the plan and write plan.json")
+    p.add_argument("--resume", type=Path, default=None, metavar="DIR",
+                   help="continue the run in DIR from its last checkpoint (written at every "
+                        "output frame and on Ctrl-C) to its end; takes no other options")
     return p, add_spec_flags(p, "print")
 
 
@@ -58,12 +61,15 @@ def spec_from_args(args, dests: set, scene: str) -> RunSpec:
     return RunSpec.create(scene, args.preset, changes, material=args.material)
 
 
-def run_simulation(spec: RunSpec, out_dir: Path) -> int:
+def run_simulation(spec: RunSpec, out_dir: Path, sim=None, progress: bool = True) -> int:
     """Print the estimate, run with a progress bar, report where the results are."""
     from taichi_mex.app.progress import ProgressBar
     from taichi_mex.sim.simulation import Simulation
 
-    sim = Simulation.from_spec(spec, out_dir=out_dir)
+    sim = sim or Simulation.from_spec(spec, out_dir=out_dir)
+    if sim.resumed:
+        print(f"resuming {out_dir} at t = {sim.time_s:.6g} s (step {sim.steps}) of "
+              f"{sim.plan.t_end_s:.6g} s")
     m = spec.material
     eta = m.zero_shear_viscosity(m.extrusion_temperature_c)
     print(f"material {m.name}" + (f" ({spec.material_source})" if spec.material_source else "")
@@ -75,7 +81,7 @@ def run_simulation(spec: RunSpec, out_dir: Path) -> int:
         print(creeping)
     for warning in sim.estimate["warnings"]:
         print(f"warning: {warning}")
-    bar = ProgressBar(sim.plan.t_start_s, sim.plan.t_end_s) if spec.run.progress else None
+    bar = ProgressBar(sim.time_s, sim.plan.t_end_s) if spec.run.progress and progress else None
     summary = sim.run(reporter=bar)
     state = "interrupted (frames so far kept)" if summary.get("interrupted") else "done"
     print(f"{state}: {summary['steps']} steps, {summary['simulated_time_s']:.4g} s simulated in "
@@ -120,6 +126,18 @@ def run_print(argv: list[str]) -> int:
 
     parser, dests = print_parser()
     args = parser.parse_args(argv)
+    if args.resume is not None:
+        changes = spec_changes(args, dests)
+        quiet = changes.pop("run.progress", True) is False  # --quiet changes no result
+        given = sorted(changes) + [f"--{k}" for k in ("config", "preset", "material", "gcode")
+                                   if getattr(args, k) is not None]
+        if given or args.dry_run:
+            raise UserInputError(f"--resume continues a run as it was described; drop "
+                                 f"{', '.join(given) or '--dry-run'} (or start a new run with --config).")
+        from taichi_mex.sim.simulation import Simulation
+
+        sim = Simulation.resume(args.resume)
+        return run_simulation(sim.description(), args.resume, sim, progress=not quiet)
     spec = spec_from_args(args, dests, "print")
     if spec.scene != "print":  # --config of a scene run
         if args.dry_run:

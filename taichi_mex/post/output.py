@@ -25,13 +25,27 @@ UNITS = {
 
 
 class FrameWriter:
-    def __init__(self, out_dir: Path, config: dict, scene: str, fields: list[str]):
+    def __init__(self, out_dir: Path, config: dict, scene: str, fields: list[str],
+                 resume_at_s: float | None = None):
+        """``resume_at_s``: append to the run's file, dropping frames written after that time
+        (a frame the run wrote after its last checkpoint)."""
         from taichi_mex import __version__
 
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.path = self.out_dir / "particles.h5"
         self.fields = fields
+        if resume_at_s is not None:
+            self.h5 = h5py.File(self.path, "a")
+            self.frames = self.h5.require_group("frames")
+            self.index = []
+            for name in sorted(self.frames):
+                g = self.frames[name]
+                if g.attrs["time_s"] > resume_at_s + 1e-12:
+                    del self.frames[name]
+                else:
+                    self.index.append((name, float(g.attrs["time_s"]), len(g["position"])))
+            return
         self.h5 = h5py.File(self.path, "w")
         self.h5.attrs["config"] = json.dumps(config, default=str)
         self.h5.attrs["units"] = json.dumps({k: UNITS.get(k, "") for k in ["position"] + fields})

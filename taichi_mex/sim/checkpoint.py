@@ -59,7 +59,7 @@ def _walk(obj, path: str, seen: set, fields: dict, values: dict) -> None:
 
 def _roots(sim) -> dict:
     roots = {"state": sim.state, "solver": sim.solver, "viscosity": sim.viscosity}
-    for name in ("inlet", "thermal", "solidification"):
+    for name in ("inlet", "thermal", "solidification", "probes"):
         if getattr(sim, name, None) is not None:
             roots[name] = getattr(sim, name)
     return roots

@@ -55,11 +55,14 @@ class Simulation:
         """The run a :class:`~taichi_mex.spec.RunSpec` describes (the way every entry point
         builds one)."""
         spec.validate()
-        return cls(spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset)
+        return cls(spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset,
+                   material_source=spec.material_source)
 
     def __init__(self, scene, run: RunOptions | None = None, material: Material | None = None,
-                 out_dir=None, preset: str | None = None):
+                 out_dir=None, preset: str | None = None, material_source: str | None = None):
+        # provenance of the run description (config.json): what the options started from
         self.preset = preset
+        self.material_source = material_source
         self.run_opts = run or RunOptions()
         self.material = material or Material()
         self.run_opts.validate()
@@ -69,6 +72,10 @@ class Simulation:
         self.creeping = self._creeping_numbers()
         self.viscosity_scale = self.creeping["viscosity_scale"]
         self._check_probes()
+        if self.run_opts.snapshot_field == "temperature" and not (
+                self.run_opts.thermal.enabled or "thermal" in self.plan.needs):
+            raise UserInputError("Pictures coloured by temperature need heat: add --thermal (or "
+                                 "colour by density, pressure, velocity, bead_id or phase).")
         self.probes = None
         self.out_dir = Path(out_dir) if out_dir else None
         self._pairing = None
@@ -90,6 +97,8 @@ class Simulation:
                 f"{self.estimate['simulated_time_s']:.3g} s. That is days of computing; {advice} "
                 f"(or raise RunOptions.max_steps, now {self.run_opts.max_steps:,}).")
         self._built = False
+        self.resumed = False
+        self._description = None
         self.time_s = self.plan.t_start_s
         self.steps = 0
         self.history: list[dict] = []
@@ -306,6 +315,10 @@ class Simulation:
                 self.thermal.set_temperature(sl, block.temperature_c)
         if self.inlet is not None:
             self.inlet.build_tip(self.plan.t_start_s)
+        if self.run_opts.probes_mm:
+            from taichi_mex.post.probes import ProbeRecorder
+
+            self.probes = ProbeRecorder(self.run_opts.probes_mm, self.kernel.W_np, self.kernel.H)
         self._built = True
 
     # ----------------------------------------------------------------- stepping hooks
@@ -387,11 +400,14 @@ class Simulation:
         t_end = self.plan.t_end_s if until_s is None else min(until_s, self.plan.t_end_s)
         span = max(t_end - self.plan.t_start_s, 1e-12)
         every = run.output_every_s or span / (run.animation_frames if run.animation else 10.0)
-        self.lost_particles = 0
-        self._inlet_retired = False
+        if not self.resumed:
+            self.lost_particles = 0
+            self._inlet_retired = False
         writer = self._open_writer()
         t = self.time_s
         next_out = t
+        if self.resumed:  # its frame is written: continue on the same frame times
+            next_out = self.plan.t_start_s + every * (np.floor((t - self.plan.t_start_s) / every + 1e-9) + 1)
         snap_every = run.snapshot_every_s
         next_snap = t + snap_every if snap_every else np.inf
         probe_every = run.probe_every_s or span / 200.0
@@ -480,10 +496,6 @@ class Simulation:
         return fields
 
     def _sample_probes(self, t: float) -> None:
-        if self.probes is None:
-            from taichi_mex.post.probes import ProbeRecorder
-
-            self.probes = ProbeRecorder(self.run_opts.probes_mm, self.kernel.W_np, self.kernel.H)
         temperature = self.state.numpy("temperature") if self.thermal is not None else None
         self.probes.sample(t, self.state.numpy("position"), self.state.numpy("velocity"),
                            temperature)
@@ -504,7 +516,8 @@ class Simulation:
         entry = scene_entries().get(getattr(self.scene, "name", None))
         if entry is None or not isinstance(getattr(self.scene, "options", None), entry.options):
             return None
-        return RunSpec(self.scene.name, self.scene.options, self.run_opts, self.material, self.preset)
+        return RunSpec(self.scene.name, self.scene.options, self.run_opts, self.material, self.preset,
+                       self.material_source)
 
     def _open_writer(self):
         if self.out_dir is None:
@@ -512,17 +525,49 @@ class Simulation:
         description = self.description()
         if description is not None:
             description.write(self.out_dir)
+            self._description = json.loads(json.dumps(description.to_dict()))
         else:
             log.warning("scene '%s' is not a registered scene: no config.json (the run cannot be "
                         "re-created from a file)", getattr(self.scene, "name", "?"))
         from taichi_mex.post.output import FrameWriter
 
-        writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields())
-        writer.write_plate(self.state.numpy("position", PLATE))
+        writer = FrameWriter(self.out_dir, self.config_dict(), self.plan.name, self.output_fields(),
+                             resume_at_s=self.time_s if self.resumed else None)
+        if not self.resumed:
+            writer.write_plate(self.state.numpy("position", PLATE))
         return writer
 
     def _write_frame(self, writer, t: float) -> None:
         writer.write_frame(t, self.steps, self.frame_data())
+        if self._description is not None:
+            from taichi_mex.sim import checkpoint
+
+            checkpoint.save(self, self._description)
+
+    @classmethod
+    def resume(cls, out_dir) -> "Simulation":
+        """The run in ``out_dir`` (its config.json and checkpoint.pkl), put back where its
+        last checkpoint left it; ``run()`` then continues it to its end."""
+        from taichi_mex.sim import checkpoint
+        from taichi_mex.spec import RunSpec
+
+        out_dir = Path(out_dir)
+        if not (out_dir / "config.json").is_file():
+            raise UserInputError(f"{out_dir} holds no config.json: not a taichi_mex run folder.")
+        data = checkpoint.load(out_dir)
+        spec = RunSpec.load(out_dir / "config.json")
+        if data["description"] != json.loads(json.dumps(spec.to_dict())):
+            raise UserInputError(f"{out_dir}/config.json differs from the run its checkpoint "
+                                 "belongs to: resume refuses a changed configuration (start a new "
+                                 "run with --config instead).")
+        sim = cls.from_spec(spec, out_dir=out_dir)
+        if data["run"]["time_s"] >= sim.plan.t_end_s - 1e-12:
+            raise UserInputError(f"The run in {out_dir} already reached its end (t = "
+                                 f"{data['run']['time_s']:.6g} s); nothing to resume.")
+        sim.build()
+        checkpoint.restore(sim, data)
+        sim.resumed = True
+        return sim
 
     def _finish_outputs(self, summary: dict) -> None:
         if hasattr(self.scene, "write_outputs") and "error" not in summary:
