@@ -537,6 +537,9 @@ class RunOptions:
                            check=Points(), flag="--probe", parse=parse_point, repeat=True)
     probe_every_s: float | None = opt(None, help="probe sampling interval (s; None: 200 samples "
                                       "over the run)", check=Either(NONE, Positive()))
+    profile: bool = opt(False, help="time each phase of the step (neighbour search, each solve, "
+                        "output) into summary.json's phase_seconds; waits for the device at each "
+                        "phase, so a few per cent slower", check=Flag(), flag="--profile", const=True)
     animation: bool = opt(False, help="write animation.mp4 of the deposition (a GIF where no "
                           "encoder is available)", check=Flag(), flag="--animation", const=True)
     animation_frames: int = opt(60, help="frames of the animation, when output_every_s is not "

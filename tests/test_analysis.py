@@ -140,25 +140,27 @@ def test_void_fraction_of_a_block_with_a_hole(tmp_path):
 
 
 def test_cli_extra_positions_and_bad_inputs(tmp_path, capsys):
+    from taichi_mex.app.analyse import main as analyse_main
+
     yz = lattice_section(-0.2e-3, 0.2e-3, 0.0, 0.2e-3)
     run = write_run(tmp_path / "run", yz, np.zeros(len(yz)), frames=2)
-    assert analysis.main([str(run), "--frame", "0", "--at", "0.1"]) == 0
+    assert analyse_main([str(run), "--frame", "0", "--at", "0.1"]) == 0
     assert "void 0.00 %" in capsys.readouterr().out
     report = json.loads((run / "mesostructure.json").read_text())
     assert [s["position"]["coordinate_mm"] for s in report["sections"]] == pytest.approx([0.0, 0.1])
     assert len(list((run / "sections").glob("section_*.png"))) == 2
     with pytest.raises(UserInputError, match="frame 5 does not exist"):
-        analysis.main([str(run), "--frame", "5"])
+        analyse_main([str(run), "--frame", "5"])
     with pytest.raises(UserInputError, match="cuts no melt"):
-        analysis.main([str(run), "--at", "3"])
+        analyse_main([str(run), "--at", "3"])
     with pytest.raises(UserInputError, match="No run folder"):
-        analysis.main([str(tmp_path / "missing")])
+        analyse_main([str(tmp_path / "missing")])
     with pytest.raises(UserInputError, match="No particles file"):
-        analysis.main([str(tmp_path)])
+        analyse_main([str(tmp_path)])
     with pytest.raises(UserInputError):
-        analysis.main([str(run), "--frame", "last"])
+        analyse_main([str(run), "--frame", "last"])
     with pytest.raises(UserInputError, match="horizontal"):
-        analysis.main([str(run), "--direction", "0", "0"])
+        analyse_main([str(run), "--direction", "0", "0"])
     with pytest.raises(UserInputError, match="horizontal"):
         analysis.cross_section(analysis.load_frame(run / "particles.h5"), [0, 0, 0], [0, 0, 1], DX)
 

@@ -72,7 +72,7 @@ def test_hdf5_xdmf_and_snapshots(paper_run):
         for text in items:
             assert text.split(":", 1)[1] in h5
     pngs = sorted(p.name for p in (out / "snapshots").glob("*.png"))
-    assert pngs == ["final_section.png", "final_side.png", "final_top.png"]
+    assert pngs == ["final_oblique.png", "final_section.png", "final_side.png", "final_top.png"]
     assert all((out / "snapshots" / p).stat().st_size > 5000 for p in pngs)
     assert json.loads((out / "summary.json").read_text())["steps"] == s["steps"]
 

@@ -103,6 +103,12 @@ class Simulation:
         self.steps = 0
         self.history: list[dict] = []
 
+    def melt_particles(self) -> int:
+        """Melt the solver moves: the scene's initial fluid plus what the inlet released, less
+        what left the domain (the cost of a print should follow this, not the walls)."""
+        released = self.inlet.released_count if self.inlet is not None else 0
+        return self._initial_fluid + released - self.lost_particles
+
     # ----------------------------------------------------------------- planning
     def _check_probes(self) -> None:
         lo, hi = self.plan.domain_lo_m * 1e3, self.plan.domain_hi_m * 1e3
@@ -260,6 +266,9 @@ class Simulation:
 
         run = self.run_opts
         self.arch_used = backend.init(run.arch, run.precision, run.cpu_threads)
+        from taichi_mex.core.timing import PhaseTimer
+
+        self.timer = PhaseTimer(run.profile)
         kind, factor = run.resolved_kernel()
         dx = run.spacing_m
         self.kernel = Kernel(kind, factor * dx)
@@ -294,7 +303,8 @@ class Simulation:
         hooks = StepHooks(refresh=self.refresh, refresh_lists=self.refresh_lists,
                           heat_step=self.heat_step, move_boundaries=self.move_boundaries,
                           diverged=self.diverged, extra_dt_limits=self.extra_dt_limits,
-                          boundary_speed=self.boundary_speed, steps=lambda: self.steps)
+                          boundary_speed=self.boundary_speed, steps=lambda: self.steps,
+                          phase=self.timer.phase)
         self.solver = SOLVERS[run.scheme](self.state, self.grid, self.kernel, self.viscosity,
                                           self.material.density_kg_m3, run, hooks,
                                           self.plan.speed_scale_m_s, self.plan.max_dt_s)
@@ -307,6 +317,7 @@ class Simulation:
             spec = self.plan.inlet
             self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H, self.mass,
                                      spec.z_offset_m, spec.tip_outer_diameter_m)
+        self._initial_fluid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
         for block in self.plan.blocks:
             sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
                                    density=self.material.density_kg_m3, bead=block.bead,
@@ -415,7 +426,7 @@ class Simulation:
         interrupted = False
         error = None
         wall0 = time.perf_counter()
-        particle_steps = 0
+        particle_steps = melt_steps = 0
         dt_limits = {}
         speed_limit = run.max_speed_m_s or max(1.0, 20.0 * self.plan.speed_scale_m_s)
         monitor = getattr(self.scene, "monitor", None)
@@ -443,6 +454,7 @@ class Simulation:
                 self.time_s = t
                 self.steps += 1
                 particle_steps += self.state.n
+                melt_steps += self.melt_particles()
                 if self.inlet is not None and not self._inlet_retired and t > self.plan.inlet.selection.t_end_s:
                     self.inlet.retire()
                     self._inlet_retired = True
@@ -465,6 +477,9 @@ class Simulation:
         if writer is not None and interrupted:
             self._write_frame(writer, t)
         summary = self.summary(wall, particle_steps, dt_limits)
+        summary["melt_particle_steps_per_s"] = float(melt_steps / wall) if wall > 0 else 0.0
+        if run.profile:
+            summary["phase_seconds"] = dict(sorted(self.timer.seconds.items(), key=lambda kv: -kv[1]))
         summary["interrupted"] = interrupted
         if error is not None:
             summary["error"] = str(error)
@@ -538,11 +553,12 @@ class Simulation:
         return writer
 
     def _write_frame(self, writer, t: float) -> None:
-        writer.write_frame(t, self.steps, self.frame_data())
-        if self._description is not None:
-            from taichi_mex.sim import checkpoint
+        with self.timer.phase("output and checkpoint"):
+            writer.write_frame(t, self.steps, self.frame_data())
+            if self._description is not None:
+                from taichi_mex.sim import checkpoint
 
-            checkpoint.save(self, self._description)
+                checkpoint.save(self, self._description)
 
     @classmethod
     def resume(cls, out_dir) -> "Simulation":

@@ -31,7 +31,8 @@ class StepHooks:
     diverged(t, what): stop the run as blown up at time t (raises SimulationDiverged);
     extra_dt_limits(): time-step limits of optional physics, {name: s};
     boundary_speed(): the fastest moving wall, m/s;
-    steps(): steps taken so far (for per-step diagnostics).
+    steps(): steps taken so far (for per-step diagnostics);
+    phase(name): a context that times a phase of the step (core/timing.py; free when off).
     """
 
     refresh: Callable
@@ -42,6 +43,7 @@ class StepHooks:
     extra_dt_limits: Callable
     boundary_speed: Callable
     steps: Callable
+    phase: Callable
 
 
 class EDACSolver:
@@ -81,12 +83,17 @@ class EDACSolver:
     def step(self, t: float, dt: float) -> float:
         e = self.edac
         h = self.hooks
-        moved = e.predict(self.state.n, 0.5 * dt, self.t_eval)
-        h.refresh(t + 0.5 * dt, moved)
+        with h.phase("predict"):
+            moved = e.predict(self.state.n, 0.5 * dt, self.t_eval)
+        with h.phase("neighbour search"):
+            h.refresh(t + 0.5 * dt, moved)
         self.t_eval = t + 0.5 * dt
-        self._check(e.evaluate(dt, self.t_eval), t + dt)
-        h.heat_step(dt)  # lists and densities are those of the midpoint state
-        h.move_boundaries(t + dt)
+        with h.phase("rates and correct"):
+            self._check(e.evaluate(dt, self.t_eval), t + dt)
+        with h.phase("heat"):
+            h.heat_step(dt)  # lists and densities are those of the midpoint state
+        with h.phase("nozzle and inlet"):
+            h.move_boundaries(t + dt)
         return dt
 
     def _check(self, nonfinite: int, t: float) -> None:
@@ -201,12 +208,15 @@ class DFSPHSolver:
 
     def step(self, t: float, dt: float) -> float:
         h = self.hooks
-        h.refresh_lists()
+        with h.phase("neighbour search"):
+            h.refresh_lists()
         n = self.state.n
         d = self.dfsph
-        d.prepare(n)
+        with h.phase("densities and factors"):
+            d.prepare(n)
         self._record_peak(float(d.rho_peak[None]) / d.rho0 - 1.0)
-        h.heat_step(dt)  # at x_n, with this step's lists and densities
+        with h.phase("heat"):
+            h.heat_step(dt)  # at x_n, with this step's lists and densities
         nf = self.fluid.update()  # after solidification too
         d.rows.update()
         self._save(n)
@@ -216,22 +226,26 @@ class DFSPHSolver:
                 dt *= 0.5
                 self.halvings += 1
             if self._divergence_solve_wanted(dt):
-                iv, _ = d.divergence_solve(dt)
+                with h.phase("divergence solve"):
+                    iv, _ = d.divergence_solve(dt)
                 self.totals["divergence_iterations"] += iv
             d.pressure_predictor(n, dt)
             self._gravity(n, dt)
-            ik, res = self.visc.solve(dt)
-            ip, err = d.density_solve(dt)
+            with h.phase("viscosity solve"):
+                ik, res = self.visc.solve(dt)
+            with h.phase("density solve"):
+                ip, err = d.density_solve(dt)
             moved = None
             if self.opts.compression_check is not None:
-                moved = d.moved_compression(d.rows.n, dt)
-                for _ in range(self.opts.compression_corrections):
-                    if moved <= self.opts.compression_check:
-                        break
-                    ic, err = d.correct_compression(dt)
-                    ip += ic
-                    self.corrections += 1
+                with h.phase("compression check"):
                     moved = d.moved_compression(d.rows.n, dt)
+                    for _ in range(self.opts.compression_corrections):
+                        if moved <= self.opts.compression_check:
+                            break
+                        ic, err = d.correct_compression(dt)
+                        ip += ic
+                        self.corrections += 1
+                        moved = d.moved_compression(d.rows.n, dt)
             self.totals["viscosity_iterations"] += ik
             self.totals["density_iterations"] += ip
             vmax = float(d.max_fluid_speed(n))
@@ -239,7 +253,8 @@ class DFSPHSolver:
                 break
         self.worst["viscosity_residual"] = max(self.worst["viscosity_residual"], res)
         self.worst["density_error"] = max(self.worst["density_error"], err)
-        out = d.finish(n, dt, d.shifting * self.dx * self.dx)
+        with h.phase("advance"):
+            out = d.finish(n, dt, d.shifting * self.dx * self.dx)
         self.vmax = float(out[0])
         self.ejected += int(out[2])
         self.clamped += int(out[3])
@@ -255,7 +270,8 @@ class DFSPHSolver:
                      "viscosity_residual": res, "dt": dt,
                      # the densest melt this step leaves, summed at the new positions
                      "moved_compression": moved}
-        h.move_boundaries(t + dt)
+        with h.phase("nozzle and inlet"):
+            h.move_boundaries(t + dt)
         return dt
 
     def _record_peak(self, compression: float) -> None:
@@ -315,7 +331,8 @@ class StaticSolver:
         return min(limits.values()), limits
 
     def step(self, t: float, dt: float) -> float:
-        self.hooks.heat_step(dt)
+        with self.hooks.phase("heat"):
+            self.hooks.heat_step(dt)
         return dt
 
     def max_speed(self) -> float:
