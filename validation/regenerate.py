@@ -1,0 +1,458 @@
+"""Regenerate a validation case's measured table.
+
+    python validation/regenerate.py --list
+    python validation/regenerate.py CASE [--quick] [--out DIR] [--commands]
+    python validation/regenerate.py --references
+
+Each case runs taichi_mex's own command line (``python -m taichi_mex ...``, one process per
+command, one command at a time), reads what the commands wrote (``summary.json``,
+``trade.json``, ``stability.json``, ``bench.json``), builds a markdown table and rewrites the
+text between ``<!-- table:begin -->`` and ``<!-- table:end -->`` in
+``validation/CASE/README.md``, with the date, the machine and the exact commands.
+``--quick`` runs coarse, short settings (about 1-3 minutes a case) to check the machinery;
+its numbers are not the validation figures. ``--commands`` prints the commands and exits.
+
+Plain Python (stdlib + numpy); the per-case description is the table ``CASES`` below.
+"""
+
+import argparse
+import datetime
+import importlib.util
+import json
+import math
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+BEGIN, END = "<!-- table:begin -->", "<!-- table:end -->"
+QUIET = ["--no-snapshots", "--quiet"]
+
+
+# ----------------------------------------------------------------------------- readers
+def read_summary(out: Path) -> list[dict]:
+    """One row: the run's summary.json."""
+    return [json.loads((out / "summary.json").read_text())]
+
+
+def read_study(out: Path) -> list[dict]:
+    """One row per ladder run: trade.json's row over the run's own summary.json."""
+    rows = []
+    for k, row in enumerate(json.loads((out / "trade.json").read_text())):
+        path = out / f"run{k:02d}" / "summary.json"
+        summary = json.loads(path.read_text()) if path.exists() else {}
+        rows.append({**summary, **{key: v for key, v in row.items() if v is not None}})
+    return rows
+
+
+def read_stability(out: Path) -> list[dict]:
+    return json.loads((out / "stability.json").read_text())
+
+
+def read_bench(out: Path) -> list[dict]:
+    """Our row and PySPH's (when it ran), with the ratio on PySPH's row."""
+    result = json.loads((out / "bench.json").read_text())
+    rows = [dict(result["ours"])]
+    if result.get("pysph"):
+        rows.append({**result["pysph"], "ratio": result.get("ratio")})
+    return rows
+
+
+# ----------------------------------------------------------------------------- columns
+def pct(key, digits=1):
+    return lambda r: "" if r.get(key) is None else f"{100 * r[key]:.{digits}f} %"
+
+
+def num(key, fmt="{:,.0f}"):
+    return lambda r: "" if r.get(key) is None else fmt.format(r[key])
+
+
+def ratio_to(key, ref, fmt="{:.3f}"):
+    """value / reference and its deviation, e.g. '0.550 (+22 %)'."""
+    def cell(r):
+        v, w = r.get(key), ref(r)
+        if v is None or not w:
+            return ""
+        return f"{fmt.format(v)} ({100 * (v / w - 1):+.0f} %)"
+    return cell
+
+
+def slicer_width_mm(area_mm2: float, gap_mm: float) -> float:
+    """The slicer's rounded rectangle (Comminal et al., Addit. Manuf. 20, 2018):
+    W = A / g + (1 - pi / 4) g."""
+    return area_mm2 / gap_mm + (1.0 - math.pi / 4.0) * gap_mm
+
+
+#: the bundled single bead: 0.45 mm x 0.2 mm rounded rectangle, A = (W - g) g + pi g^2 / 4
+BEAD_GAP_MM = 0.2
+BEAD_AREA_MM2 = (0.45 - BEAD_GAP_MM) * BEAD_GAP_MM + math.pi * BEAD_GAP_MM**2 / 4.0
+
+COMMON = [("particles", num("particles_active")), ("steps", num("steps")),
+          ("wall s", num("wall_time_s"))]
+BEAD = [("material area mm^2 (commanded %.4f)" % BEAD_AREA_MM2,
+         ratio_to("bead_material_area_mm2", lambda r: BEAD_AREA_MM2, "{:.4f}")),
+        ("section W mm (rounded rectangle %.3f)" % slicer_width_mm(BEAD_AREA_MM2, BEAD_GAP_MM),
+         ratio_to("bead_width_mm", lambda r: slicer_width_mm(BEAD_AREA_MM2, BEAD_GAP_MM))),
+        ("section H mm (gap 0.2)", ratio_to("bead_height_mm", lambda r: BEAD_GAP_MM)),
+        ("p99 W / H mm", lambda r: f"{r['bead_width_p99_mm']:.3f} / {r['bead_height_p99_mm']:.3f}"
+         if r.get("bead_width_p99_mm") else "")]
+DENSITY = [("compression end max / worst step", lambda r: f"{100 * r['compression_error_max']:.2f} % / "
+            f"{100 * r.get('compression_error_max_run', float('nan')):.2f} %"
+            if r.get("compression_error_max") is not None else ""),
+           ("interior density mean / max", lambda r: f"{100 * r['density_error_mean']:.2f} % / "
+            f"{100 * r['density_error_max']:.1f} %" if r.get("density_error_mean") is not None else ""),
+           ("paired melt", pct("paired_fraction")), ("section voids", pct("void_fraction", 0))]
+CG = [("pressure / divergence / viscosity CG per step",
+       lambda r: "/".join(f" {r.get(k, 0) or 0:.1f} " for k in (
+           "pressure_iterations_per_step", "divergence_iterations_per_step",
+           "viscosity_iterations_per_step")).strip())]
+LOSSES = [("droplets ejected / particles lost", lambda r: f"{r.get('droplets_ejected', 0)} / "
+           f"{r.get('particles_lost', 0)}"),
+          ("halvings / clamped particle-steps / worst viscous residual",
+           lambda r: f"{r.get('time_step_halvings', 0)} / {r.get('speed_clamped_particle_steps', 0)} / "
+           f"{r.get('viscosity_residual_worst', float('nan')):.2g}")]
+
+
+# ----------------------------------------------------------------------------- cases
+@dataclass
+class Case:
+    what: str
+    #: (label, arguments after 'python -m taichi_mex'); '{out}' is the run's output folder
+    runs: list
+    quick: list
+    columns: list
+    read: object = read_summary
+    rows: list = field(default_factory=list)
+
+
+def scene(name, *args):
+    return ["scene", name, *map(str, args), *QUIET, "--out", "{out}"]
+
+
+def bead(*args):
+    return [*map(str, args), *QUIET, "--out", "{out}"]
+
+
+HYDRO = ("--width-mm", 8, "--height-mm", 12)
+SHEAR = ("--length-mm", 6, "--height-mm", 3, "--plate-speed", 0.01, "--until", 0.01)
+COLLAPSE = ("--radius-mm", 4, "--height-mm", 4, "--viscosity", 10, "--density", 1000)
+BLOCK = ("gcode/paper_block_3x3.gcode",)
+
+CASES = {
+    "hydrostatic": Case(
+        "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
+        [(f"{s} {dx} mm", scene("hydrostatic", *HYDRO, "--scheme", s, "--spacing-mm", dx, "--until", 0.3))
+         for s, dx in (("edac", 1), ("edac", 0.667), ("dfsph", 1), ("dfsph", 0.667), ("dfsph", 0.5))],
+        [(f"{s} 1.5 mm", scene("hydrostatic", *HYDRO, "--scheme", s, "--spacing-mm", 1.5, "--until", 0.1))
+         for s in ("edac", "dfsph")],
+        COMMON + [("slope error", pct("pressure_gradient_rel_error")),
+                  ("mean error / rho g H", pct("pressure_error_rel_mean")),
+                  ("max error / rho g H", pct("pressure_error_rel_max")),
+                  ("particles lost", num("particles_lost"))]),
+    "shear": Case(
+        "Stokes' first problem: u(z) against U erfc(z / (2 sqrt(nu t))) after 0.01 s",
+        [(f"{dx} mm {p}", scene("shear", *SHEAR, "--spacing-mm", dx, "--precision", p))
+         for dx, p in ((0.4, "f32"), (0.3, "f32"), (0.2, "f32"), (0.2, "f64"), (0.15, "f32"))],
+        [(f"{dx} mm f32", scene("shear", *SHEAR, "--spacing-mm", dx)) for dx in (0.4, 0.3)],
+        COMMON + [("max error / U", pct("shear_error_max_rel_U")),
+                  ("mean error / U", pct("shear_error_mean_rel_U"))]),
+    "collapse": Case(
+        "4 mm x 4 mm cylinder, 10 Pa s, 1000 kg/m^3, slumping on a no-slip plate, against Huppert (1982)",
+        [(f"{dx} mm, {t} s", scene("collapse", *COLLAPSE, "--spacing-mm", dx, "--until", t))
+         for dx, t in ((0.5, 12), (0.5, 30), (0.4, 30), (0.3, 30))],
+        [("0.8 mm, 6 s", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6)),
+         ("0.6 mm, 6 s", scene("collapse", *COLLAPSE, "--spacing-mm", 0.6, "--until", 6))],
+        COMMON + [("coefficient ratio K^(1/8) / Huppert", num("front_coefficient_ratio", "{:.3f}")),
+                  ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
+                  ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
+                  ("virtual origin s", num("front_virtual_origin_s", "{:.2f}"))]),
+    "thermal_beam": Case(
+        "the seed paper's aluminium beam, 50 s: centre-line temperature against the analytic "
+        "series (a) and a finite-volume solution with losses (b)",
+        [(f"(a) conduction, {dx} mm", scene("thermal-beam", "--no-losses", "--spacing-mm", dx))
+         for dx in (4, 2)]
+        + [(f"(b) {m}, {dx} mm", scene("thermal-beam", "--surface-method", m, "--spacing-mm", dx))
+           for dx in (4, 2) for m in ("eigenvalue", "colour_gradient")],
+        [("(a) conduction, 4 mm, 10 s", scene("thermal-beam", "--no-losses", "--spacing-mm", 4, "--until", 10))]
+        + [(f"(b) {m}, 4 mm, 10 s", scene("thermal-beam", "--surface-method", m, "--spacing-mm", 4,
+                                          "--until", 10)) for m in ("eigenvalue", "colour_gradient")],
+        COMMON + [("max error K", num("thermal_error_max_c", "{:.2f}")),
+                  ("rms error K", num("thermal_error_rms_c", "{:.2f}")),
+                  ("area / true area", num("surface_area_ratio", "{:.3f}")),
+                  ("reference", lambda r: r.get("thermal_reference", ""))]),
+    "strands": Case(
+        "the bundled single bead (0.2 mm gap, 0.4 mm nozzle, 60 mm/s, PLA 1000 Pa s, DFSPH): "
+        "section against the commanded area and the slicer's rounded rectangle",
+        [(f"{res}{' unscaled' if off else ''}",
+          bead("--resolution", res, *(["--viscosity-scale", "off"] if off else [])))
+         for res, off in (("draft", False), ("standard", False), ("standard", True), ("fine", False))],
+        [("0.1 mm unscaled", bead("--resolution", 0.1, "--viscosity-scale", "off"))],
+        COMMON + BEAD + DENSITY),
+    "trade": Case(
+        "the speed-accuracy ladder on the single bead (study bead): wall time against the "
+        "bead's shape error relative to the finest run",
+        [("study bead", ["study", "bead", "--out", "{out}"])],
+        [("study bead --quick", ["study", "bead", "--quick", "--out", "{out}"])],
+        [("run", lambda r: r.get("label", "")), ("status", lambda r: r.get("status", ""))]
+        + COMMON + CG + [("M particle-steps/s", lambda r: f"{r['particle_steps_per_s'] / 1e6:.2f}"
+                          if r.get("particle_steps_per_s") else ""),
+                         ("viscosity x", num("viscosity_scale", "{:.3g}")),
+                         ("shape error vs finest", pct("error"))] + BEAD + DENSITY[:3]
+        + [("note", lambda r: (r.get("message") or "").split(". ")[0][:120])],
+        read=read_study),
+    "stability": Case(
+        "a 1.5 mm bead around the real-printer baseline (DFSPH, 1000 Pa s unscaled, 60 mm/s, "
+        "0.2 mm layer, 8 particles per nozzle diameter): every case finishes or is refused up front",
+        [("matrix", ["stability", "--out", "{out}"])],
+        [("fast cases", ["stability", "--fast", "--out", "{out}"])],
+        [("case", lambda r: r["case"]), ("result", lambda r: r["status"]),
+         ("compression max / mean", lambda r: f"{100 * r['compression_error_max']:.2f} % / "
+          f"{100 * r['compression_error_mean']:.3f} %" if "compression_error_max" in r else ""),
+         ("deposited / commanded mm^3", lambda r: f"{r['deposited_mm3']:.4f} / {r['commanded_mm3']:.4f}"
+          if "deposited_mm3" in r else ""),
+         ("steps", num("steps")), ("step halvings", num("halvings")), ("wall s", num("wall_time_s")),
+         ("note", lambda r: r.get("message", "").split(". ")[0][:140])],
+        read=read_stability),
+    "peer": Case(
+        "PySPH's 3D dam break (dx = 0.02 m, 143k particles, EDAC), ours against PySPH 1.0b2 "
+        "EDACScheme, 100 steps each, one after the other",
+        [("dam break", ["bench", "dam-break", "--json", "{out}/bench.json"])],
+        [("dam break, dx 0.04, 10 steps", ["bench", "dam-break", "--dx", 0.04, "--steps", 10,
+                                           "--json", "{out}/bench.json"])],
+        [("code", lambda r: r["code"]), ("particles", num("particles")), ("steps", num("steps")),
+         ("threads / OpenMP", lambda r: str(r.get("threads", "")) + (" OpenMP" if r.get("openmp") else "")),
+         ("wall s", num("wall_s", "{:.1f}")),
+         ("M particle-steps/s", lambda r: f"{r['particle_steps_per_s'] / 1e6:.3f}"),
+         ("ours / PySPH", num("ratio", "{:.1f}x"))],
+        read=read_bench),
+    "blocks": Case(
+        "the seed paper's 3 x 3 block (paper_block_3x3.gcode, 0.4 mm layers), DFSPH, the whole 2.23 s",
+        [(f"{res}, {'unscaled' if off else 'auto'}",
+          bead(*BLOCK, "--resolution", res, *(["--viscosity-scale", "off"] if off else [])))
+         for res in ("0.1", "draft") for off in (False, True)],
+        [("0.1 mm, auto, print time to 0.6 s", bead(*BLOCK, "--resolution", 0.1, "--until", 0.6))],
+        COMMON + CG + [("section W / H mm", lambda r: f"{r.get('bead_width_mm') or float('nan'):.3f} / "
+                        f"{r.get('bead_height_mm') or float('nan'):.3f}")]
+        + DENSITY + LOSSES),
+    "mesostructure": Case(
+        "pairing and voids in the single bead's section (standard spacing, whole bead)",
+        [(f"standard, {v}", bead("--resolution", "standard", "--viscosity-scale", v))
+         for v in ("off", "auto")],
+        [("0.1 mm, off", bead("--resolution", 0.1, "--viscosity-scale", "off"))],
+        COMMON + [("viscosity x", num("viscosity_scale", "{:.3g}"))] + DENSITY
+        + [("section W / H mm", lambda r: f"{r.get('bead_width_mm') or float('nan'):.3f} / "
+            f"{r.get('bead_height_mm') or float('nan'):.3f}"), BEAD[0]]),
+}
+
+
+# ----------------------------------------------------------------------------- references
+def _hydrostatic():
+    rho, g = 1000.0, 9.81
+    return ("# p = rho g depth, rho = 1000 kg/m^3, g = 9.81 m/s^2, 12 mm column\ndepth_mm,p_pa",
+            [(d, rho * g * d * 1e-3) for d in [0.5 * k for k in range(25)]])
+
+
+def _shear():
+    nu, t, U = 0.1 / 1000.0, 0.01, 0.01
+    return (f"# Stokes' first problem: u = U erfc(z / (2 sqrt(nu t))), nu = {nu:g} m^2/s, "
+            f"t = {t:g} s, U = {U:g} m/s\nz_mm,u_over_U",
+            [(z, math.erfc(z * 1e-3 / (2.0 * math.sqrt(nu * t)))) for z in [0.05 * k for k in range(61)]])
+
+
+def _collapse():
+    eta_n = (2**10 / (3**4 * math.pi**3)) ** 0.125  # Huppert (1982), axisymmetric
+    g, nu, vol = 9.81, 10.0 / 1000.0, math.pi * 4e-3**2 * 4e-3
+    coeff = eta_n * (g * vol**3 / (3.0 * nu)) ** 0.125
+    return (f"# Huppert, J. Fluid Mech. 121 (1982): r = eta_N (g V^3 / (3 nu))^(1/8) t^(1/8), "
+            f"eta_N = {eta_n:.4f}, V = pi (4 mm)^2 4 mm, nu = 0.01 m^2/s: coefficient "
+            f"{coeff * 1e3:.4f} mm s^-1/8\nt_s,r_mm",
+            [(t, coeff * t**0.125 * 1e3) for t in [0.5 * 1.2**k for k in range(23)]])
+
+
+def _thermal_beam():
+    A, z0, B, L = 2500.0, 0.05, 150.0, 0.2
+    alpha, t = 237.0 / (2700.0 * 897.0), 50.0
+
+    def series(z):
+        T = B + A * ((L - z0) ** 3 + z0**3) / (3.0 * L)
+        for n in range(1, 401):
+            k = n * math.pi / L
+            T += 4.0 * A / (L * k * k) * ((L - z0) * (-1) ** n + z0) * math.cos(k * z) * math.exp(-alpha * k * k * t)
+        return T
+    return ("# (a) insulated aluminium beam (k 237 W/mK, rho 2700 kg/m^3, c 897 J/kgK), "
+            "T(z, 0) = 2500 (z - 0.05)^2 + 150 degC, cosine series at t = 50 s\nz_m,T_C",
+            [(z, series(z)) for z in [0.005 * k for k in range(41)]])
+
+
+def _strands():
+    rows = []
+    for gap in (0.1, 0.15, 0.2, 0.25, 0.3, 0.4):
+        rows.append((gap, BEAD_AREA_MM2, slicer_width_mm(BEAD_AREA_MM2, gap)))
+    return ("# slicer's rounded rectangle (Comminal et al., Addit. Manuf. 20, 2018): W = A/g + (1 - pi/4) g;"
+            f" A = {BEAD_AREA_MM2:.5f} mm^2 (the bundled single bead: 0.45 mm x 0.2 mm)\n"
+            "gap_mm,area_mm2,width_mm", rows)
+
+
+REFERENCES = {"hydrostatic": _hydrostatic, "shear": _shear, "collapse": _collapse,
+              "thermal_beam": _thermal_beam, "strands": _strands}
+
+
+def write_reference(name: str) -> Path | None:
+    if name not in REFERENCES:
+        return None
+    header, rows = REFERENCES[name]()
+    path = HERE / name / "reference.csv"
+    path.write_text(header + "\n" + "\n".join(",".join(f"{v:.6g}" for v in r) for r in rows) + "\n")
+    return path
+
+
+# ----------------------------------------------------------------------------- running
+def _has_module(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def taichi_command(args: list[str]) -> list[str]:
+    """``python -m taichi_mex ARGS``; the stability matrix has its own module in older
+    layouts (``python -m taichi_mex.stability``)."""
+    if args[0] == "stability" and _has_module("taichi_mex.stability"):
+        return [sys.executable, "-m", "taichi_mex.stability", *args[1:]]
+    return [sys.executable, "-m", "taichi_mex", *args]
+
+
+def shown(cmd: list[str]) -> str:
+    return shlex.join(["python", *cmd[1:]])
+
+
+def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[dict], list[str]]:
+    rows, commands = [], []
+    for k, (label, args) in enumerate(case.quick if quick else case.runs):
+        out = out_root / f"{k:02d}"
+        out.mkdir(parents=True, exist_ok=True)
+        cmd = taichi_command([str(a).replace("{out}", str(out)) for a in args])
+        commands.append(shown([str(a).replace(str(out_root), "OUT") for a in cmd]))
+        print(f"[{name} {k + 1}/{len(case.quick if quick else case.runs)}] {commands[-1]}", flush=True)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        (out / "log.txt").write_text(proc.stdout)
+        try:
+            got = case.read(out)
+        except (OSError, ValueError, KeyError) as exc:
+            got = [{"failure": f"exit {proc.returncode}: {_last_error(proc.stdout) or exc}"}]
+        for r in got:
+            r.setdefault("label", label)
+            r.setdefault("wall_time_s", time.perf_counter() - t0)
+            if isinstance(r.get("error"), str):  # a run that stopped (blow-up, refusal)
+                r["stopped"] = r["error"].split(". ")[0]
+        rows += got
+        print(f"    exit {proc.returncode}, {time.perf_counter() - t0:.0f} s", flush=True)
+    return rows, commands
+
+
+def _last_error(log: str) -> str:
+    """The last line of a log that reads like an error ('error: ...', 'ValueError: ...')."""
+    lines = [ln.strip() for ln in log.strip().splitlines() if ln.strip()]
+    hits = [ln for ln in lines if ln.lower().startswith("error") or ln.split(":")[0].endswith(("Error", "Exception"))]
+    return (hits or lines or [""])[-1][:200]
+
+
+def code_version() -> str:
+    """The git commit of the code that ran, marked when the work tree differs from it."""
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                             text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "taichi_mex"], cwd=ROOT,
+                               capture_output=True, text=True).stdout.strip()
+        return f"code `{rev}`" + (" with uncommitted changes" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "code version unknown"
+
+
+def markdown(case: Case, rows: list[dict]) -> str:
+    heads = [h for h, _ in case.columns]
+    if case.read is read_summary:
+        heads = ["run", *heads]
+    lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    for r in rows:
+        if "failure" in r:
+            lines.append(f"| {r['label']} | failed: {r['failure']} |" + " |" * (len(heads) - 2))
+            continue
+        cells = [fn(r) for _, fn in case.columns]
+        if case.read is read_summary:
+            cells = [r["label"] + (" **(stopped)**" if "stopped" in r else ""), *cells]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    stopped = [f"* {r['label']}: {r['stopped']}" for r in rows if "stopped" in r]
+    return "\n".join(lines + (["", "Stopped runs (their figures are at the time they stopped):", *stopped]
+                              if stopped else []))
+
+
+def machine() -> str:
+    return f"{platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+
+
+def rewrite(name: str, block: str) -> Path:
+    path = HERE / name / "README.md"
+    text = path.read_text()
+    if BEGIN not in text or END not in text:
+        raise SystemExit(f"{path} has no {BEGIN} ... {END} markers")
+    head, rest = text.split(BEGIN, 1)
+    _, tail = rest.split(END, 1)
+    path.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
+    return path
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("case", nargs="?", choices=sorted(CASES))
+    p.add_argument("--list", action="store_true", help="list the cases and exit")
+    p.add_argument("--quick", action="store_true", help="coarse, short runs (checks the machinery)")
+    p.add_argument("--out", type=Path, default=None, help="keep the runs here (default: a temporary folder)")
+    p.add_argument("--commands", action="store_true", help="print the commands and exit")
+    p.add_argument("--references", action="store_true",
+                   help="(re)write every case's reference.csv from its formula and exit")
+    args = p.parse_args(argv)
+    if args.references:
+        for name in REFERENCES:
+            print(f"wrote {write_reference(name)}")
+        return 0
+    if args.list or not args.case:
+        for name, case in CASES.items():
+            print(f"{name:14s} {len(case.runs)} command(s), quick {len(case.quick)}: {case.what}")
+        return 0
+    case = CASES[args.case]
+    if args.commands:
+        for _, a in case.quick if args.quick else case.runs:
+            print(shown(taichi_command([str(x).replace("{out}", "OUT") for x in a])))
+        return 0
+    with tempfile.TemporaryDirectory(prefix=f"validation-{args.case}-") as tmp:
+        out_root = (args.out or Path(tmp)).resolve()
+        t0 = time.perf_counter()
+        rows, commands = run_case(args.case, case, out_root, args.quick)
+        wall = time.perf_counter() - t0
+    stamp = (f"Regenerated {datetime.date.today().isoformat()} ({code_version()}) on {machine()}, "
+             f"Python {platform.python_version()}, {wall / 60:.1f} min in all"
+             + (", **`--quick` settings: a check of the machinery, not the validation figures**"
+                if args.quick else "")
+             + f" (`python validation/regenerate.py {args.case}{' --quick' if args.quick else ''}`). "
+             "Commands, run one after the other (OUT: the output folder):")
+    block = "\n".join([stamp, "", "```bash", *commands, "```", "", markdown(case, rows)])
+    print(block)
+    if all("failure" in r for r in rows):  # keep the last good table
+        print(f"every command failed; validation/{args.case}/README.md left as it was "
+              f"(logs: log.txt in each run folder{'' if args.out else ', pass --out DIR to keep them'})")
+        return 1
+    print(f"wrote {rewrite(args.case, block)}")
+    return 0 if all("failure" not in r for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
