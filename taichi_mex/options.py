@@ -537,6 +537,11 @@ class RunOptions:
                            check=Points(), flag="--probe", parse=parse_point, repeat=True)
     probe_every_s: float | None = opt(None, help="probe sampling interval (s; None: 200 samples "
                                       "over the run)", check=Either(NONE, Positive()))
+    skip_idle: bool = opt(True, help="while the nozzle is outside the domain and the melt creeps, "
+                          "advance heat alone (or jump, without heat) to the nozzle's return; a span "
+                          "is skipped only where the melt's gravity slump over it stays below "
+                          "creeping_limit", check=Flag(), flag="--no-skip-idle", const=False,
+                          flag_help="simulate the flow while the nozzle is away too")
     profile: bool = opt(False, help="time each phase of the step (neighbour search, each solve, "
                         "output) into summary.json's phase_seconds; waits for the device at each "
                         "phase, so a few per cent slower", check=Flag(), flag="--profile", const=True)

@@ -63,6 +63,9 @@ class ScenePlan:
     thermal_dt_s: float | None = None
     #: print scenes: the scales of the creeping-flow numbers (viscosity scaling)
     creeping: CreepingScales | None = None
+    #: spans (t_from, t_to) in s in which nothing the scene prescribes touches the domain (the
+    #: nozzle is outside it): a creeping melt may skip them (RunOptions.skip_idle)
+    idle_windows: list = field(default_factory=list)
     #: what the scene reports about itself (copied into the summary; nothing reads it back)
     info: dict = field(default_factory=dict)
 

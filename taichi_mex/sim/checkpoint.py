@@ -101,7 +101,7 @@ def save(sim, description: dict) -> Path:
     data = {"format": FORMAT, "taichi_mex": __version__, "description": description,
             "capacity": cap, "n": n, "fields": arrays, "values": values,
             "run": {"time_s": sim.time_s, "steps": sim.steps, "lost_particles": sim.lost_particles,
-                    "inlet_retired": sim._inlet_retired}}
+                    "inlet_retired": sim._inlet_retired, "skipped": sim.skipped}}
     path = Path(sim.out_dir) / FILE
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as fh:
@@ -158,4 +158,5 @@ def restore(sim, data: dict) -> None:
     sim.steps = run["steps"]
     sim.lost_particles = run["lost_particles"]
     sim._inlet_retired = run["inlet_retired"]
+    sim.skipped = run["skipped"]
     sim.grid.stale = True

@@ -97,11 +97,51 @@ class Simulation:
                 f"{self.estimate['simulated_time_s']:.3g} s. That is days of computing; {advice} "
                 f"(or raise RunOptions.max_steps, now {self.run_opts.max_steps:,}).")
         self._built = False
+        self.skipped: list[dict] = []
         self.resumed = False
         self._description = None
         self.time_s = self.plan.t_start_s
         self.steps = 0
         self.history: list[dict] = []
+
+    def _idle_end(self, t: float, t_end: float) -> float | None:
+        """End of the idle span that t lies in, if the run may skip it: the nozzle is outside
+        the domain until then, the last step was creeping (inertia gone within a step), and
+        the gravity slump rho g L T / eta over the span stays below creeping_limit (the bead
+        would creep by less than that strain; Simulation._creeping_numbers)."""
+        run = self.run_opts
+        if not run.skip_idle or not self.plan.idle_windows or not getattr(self.solver, "creeping_now", False):
+            return None
+        for lo, hi in self.plan.idle_windows:
+            if lo <= t < hi - 1e-12:
+                end = min(hi, t_end)
+                scales = self.plan.creeping
+                eta = self.creeping.get("viscosity_as_run_pa_s")
+                if scales is None or not eta:
+                    return None
+                slump = (self.material.density_kg_m3 * run.gravity_m_s2 * scales.length_m
+                         * (end - t) / eta)
+                return end if slump < run.creeping_limit else None
+        return None
+
+    def _idle_step(self, t: float, end: float) -> float:
+        """Advance an idle span: heat alone at its own stable step, or straight to its end
+        without heat; the nozzle then moves to where it re-enters."""
+        if not self.skipped or self.skipped[-1]["to_s"] < t - 1e-12:
+            self.skipped.append({"from_s": t, "to_s": t, "heat_steps": 0})
+        span = self.skipped[-1]
+        dt = end - t
+        if self.thermal is not None:
+            dt = min(min(self.extra_dt_limits().values()), dt)
+            with self.timer.phase("heat (idle)"):
+                self.heat_step(dt)
+            span["heat_steps"] += 1
+        t = end if end - (t + dt) < 1e-12 else t + dt
+        span["to_s"] = t
+        if t >= end:
+            self.move_boundaries(t)
+            self.grid.stale = True
+        return t
 
     def melt_particles(self) -> int:
         """Melt the solver moves: the scene's initial fluid plus what the inlet released, less
@@ -185,6 +225,7 @@ class Simulation:
         per_particle = int(_TEMP_FACTOR * 40 * fp + (4 + cached * fp) * max_nbr)
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
+        idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
         dt, limits = self._dt_guess(H)
         warn = []
         if "viscous" in limits and limits["viscous"] < 0.1 * limits["cfl"]:
@@ -195,8 +236,9 @@ class Simulation:
         return {"warnings": warn, "dt_limits_s": limits, "particles": initial + inflow, "capacity": capacity, "grid_cells": n_cells,
                 "memory_bytes": memory, "simulated_time_s": span, "dt_estimate_s": dt,
                 "list_skin": skin,
-                "steps_estimate": int(np.ceil(span / dt)) if dt > 0 else 0,
-                "wall_time_estimate_s": self._wall_estimate(initial, inflow, span / dt if dt > 0 else 0),
+                "idle_s": idle,
+                "steps_estimate": int(np.ceil((span - idle) / dt)) if dt > 0 else 0,
+                "wall_time_estimate_s": self._wall_estimate(initial, inflow, (span - idle) / dt if dt > 0 else 0),
                 "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
 
     def _wall_estimate(self, initial: int, inflow: int, steps: float) -> float | None:
@@ -239,7 +281,10 @@ class Simulation:
         e = self.estimate
         return (f"{e['particles']:,} particles (capacity {e['capacity']:,}), about "
                 f"{e['memory_bytes'] / 2**20:.0f} MiB, {e['grid_cells']:,} grid cells; "
-                f"{e['simulated_time_s']:.4g} s simulated in about {e['steps_estimate']:,} steps "
+                f"{e['simulated_time_s']:.4g} s simulated"
+                + (f" ({e['idle_s']:.3g} s of it with the nozzle away: heat only, or skipped)"
+                   if e.get("idle_s") else "")
+                + f" in about {e['steps_estimate']:,} steps "
                 f"of {e['dt_estimate_s']:.3g} s" + self._describe_wall(e.get("wall_time_estimate_s")))
 
     def _describe_wall(self, wall) -> str:
@@ -414,6 +459,7 @@ class Simulation:
         if not self.resumed:
             self.lost_particles = 0
             self._inlet_retired = False
+            self.skipped = []
         writer = self._open_writer()
         t = self.time_s
         next_out = t
@@ -444,6 +490,13 @@ class Simulation:
                     next_probe += probe_every
                 if t >= t_end - 1e-12:
                     break
+                idle_end = self._idle_end(t, t_end)
+                if idle_end is not None:
+                    t = self._idle_step(t, idle_end)
+                    self.time_s = t
+                    if reporter is not None:
+                        reporter.update(t, 0.0, self.state.n)
+                    continue
                 dt, dt_limits = self.solver.time_step()
                 dt = _fit_step(dt * run.dt_factor, t_end - t)
                 if not np.isfinite(dt) or dt <= 0:
@@ -477,6 +530,8 @@ class Simulation:
         if writer is not None and interrupted:
             self._write_frame(writer, t)
         summary = self.summary(wall, particle_steps, dt_limits)
+        summary["skipped_spans"] = self.skipped
+        summary["skipped_time_s"] = float(sum(s["to_s"] - s["from_s"] for s in self.skipped))
         summary["melt_particle_steps_per_s"] = float(melt_steps / wall) if wall > 0 else 0.0
         if run.profile:
             summary["phase_seconds"] = dict(sorted(self.timer.seconds.items(), key=lambda kv: -kv[1]))

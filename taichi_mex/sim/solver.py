@@ -266,6 +266,9 @@ class DFSPHSolver:
         if out[1] > 0:
             h.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                  "the pressure solve")
+        # the step was creeping: viscous diffusion crossed the kernel, inertia is gone within
+        # it (a run may then skip a span in which nothing drives the melt)
+        self.creeping_now = bool(d.creeping(dt))
         self.last = {"density_iterations": ip, "viscosity_iterations": ik, "density_error": err,
                      "viscosity_residual": res, "dt": dt,
                      # the densest melt this step leaves, summed at the new positions

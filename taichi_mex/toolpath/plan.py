@@ -49,7 +49,7 @@ class PrintPlan:
             f"{d['extruded_volume_mm3']:.4f} mm^3 of bead",
             f"selected layers {d['selected_layers']}, time {t0:.4f}-{t1:.4f} s"
             + (f", region {d['selected_region_mm']} mm" if d["selected_region_mm"] else "")
-            + f": {d['selected_extruded_volume_mm3']:.4f} mm^3 ({100 * share:.1f} % of the bead volume)",
+            + f": {d['selected_extruded_volume_mm3']:.4g} mm^3 ({_percent(share)} of the bead volume)",
         ]
         if d["ignored_commands"]:
             shown = ", ".join(f"{k} x{v}" for k, v in list(d["ignored_commands"].items())[:6])
@@ -74,3 +74,9 @@ def make_plan(gcode, printer="prusa_mini", layers=None, until_s=None, region_mm=
     traj = load_trajectory(gcode, printer, last_layer=last)
     window = None if until_s is None and from_s == 0.0 else (from_s, until_s if until_s is not None else traj.print_time_s)
     return PrintPlan(traj, traj.select(layers=layers, time_window_s=window, region_mm=region_mm))
+
+
+def _percent(share: float) -> str:
+    """A share as a percentage with the digits it needs (a part window is < 0.1 %)."""
+    value = 100.0 * share
+    return f"{value:.1f} %" if value >= 1 or value == 0 else f"{value:.2g} %"
