@@ -213,6 +213,8 @@ def test_tiny_study_on_two_workers_records_failures_and_goes_on(tiny_sweep):
                                "density_error_mean", "cooling_time_s", "wall_time_s"} <= rows[0].keys()
     assert sorted(r["status"] for r in rows) == ["done", "done", "failed", "failed"]
     assert len(json.loads((out / "failures.json").read_text())) == 2
+    index = (out / "index.html").read_text()  # the sweep's page: every run, linked to its report
+    assert all(r["run"] in index for r in rows) and "runs/" in index
     assert (out / "plot_sim_wall_time_s_vs_viscosity.png").is_file()
 
 

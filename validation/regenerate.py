@@ -17,7 +17,6 @@ Plain Python (stdlib + numpy); the per-case description is the table ``CASES`` b
 
 import argparse
 import datetime
-import importlib.util
 import json
 import math
 import os
@@ -314,18 +313,8 @@ def write_reference(name: str) -> Path | None:
 
 
 # ----------------------------------------------------------------------------- running
-def _has_module(name: str) -> bool:
-    try:
-        return importlib.util.find_spec(name) is not None
-    except (ImportError, ValueError):
-        return False
-
-
 def taichi_command(args: list[str]) -> list[str]:
-    """``python -m taichi_mex ARGS``; the stability matrix has its own module in older
-    layouts (``python -m taichi_mex.stability``)."""
-    if args[0] == "stability" and _has_module("taichi_mex.stability"):
-        return [sys.executable, "-m", "taichi_mex.stability", *args[1:]]
+    """``python -m taichi_mex ARGS``."""
     return [sys.executable, "-m", "taichi_mex", *args]
 
 
