@@ -70,11 +70,8 @@ def run_simulation(spec: RunSpec, out_dir: Path, sim=None, progress: bool = True
     if sim.resumed:
         print(f"resuming {out_dir} at t = {sim.time_s:.6g} s (step {sim.steps}) of "
               f"{sim.plan.t_end_s:.6g} s")
-    m = spec.material
-    eta = m.zero_shear_viscosity(m.extrusion_temperature_c)
-    print(f"material {m.name}" + (f" ({spec.material_source})" if spec.material_source else "")
-          + f": {m.density_kg_m3:g} kg/m^3, eta0 {eta:.4g} Pa s at {m.extrusion_temperature_c:g} degC "
-          f"({m.viscosity_model}), Tg {m.glass_transition_c:g} degC")
+    if spec.scene != "print":  # a print's plan has said it already
+        print(material_line(spec))
     print(f"estimate: {sim.describe_estimate()}")
     creeping = sim.describe_creeping()
     if creeping:
@@ -99,6 +96,14 @@ def run_simulation(spec: RunSpec, out_dir: Path, sim=None, progress: bool = True
     print(f"results in {out_dir}: config.json, particles.h5, particles.xdmf, summary.json"
           + (", snapshots/" if spec.run.snapshots else ""))
     return 130 if summary.get("interrupted") else 0
+
+
+def material_line(spec: RunSpec) -> str:
+    m = spec.material
+    eta = m.zero_shear_viscosity(m.extrusion_temperature_c)
+    return (f"material {m.name}" + (f" ({spec.material_source})" if spec.material_source else "")
+            + f": {m.density_kg_m3:g} kg/m^3, eta0 {eta:.4g} Pa s at {m.extrusion_temperature_c:g} "
+            f"degC ({m.viscosity_model}), Tg {m.glass_transition_c:g} degC")
 
 
 def run_warnings(summary: dict, run) -> list[str]:
@@ -147,6 +152,7 @@ def run_print(argv: list[str]) -> int:
     plan = make_plan(bundled.resolve_gcode(o.gcode), o.printer, layers=parse_layers(o.layers),
                      until_s=o.until_s, region_mm=parse_region(o.region))
     print(plan.describe())
+    print(material_line(spec))
     print(f"plan written to {plan.write(args.out)}")
     if args.dry_run:
         return 0
