@@ -139,3 +139,10 @@ def test_one_declaration_reaches_the_command_line_sweeps_and_config(tmp_path, mo
     assert RunSpec.load(tmp_path) == spec
     with pytest.raises(taichi_mex.errors.UserInputError, match="tilt_deg"):
         RunSpec.create("collapse", changes={"tilt": -1.0})
+
+
+def test_readme_is_a_guide_with_the_two_commands():
+    text = (PACKAGE.parent / "README.md").read_text()
+    assert len(text) < 15_000
+    assert "pip install . && python -m taichi_mex --out run" in text
+    assert "pip install '.[test]' && python -m pytest" in text
