@@ -18,9 +18,9 @@ with Jacobi sweeps using the diagonal factor alpha_i = 1 / (sum_j |V_j grad W_ij
 |sum_j V_j grad W_ij + sum_b V_b grad W_ib|^2), clamping both sources to compression so that
 free-surface particles (partial kernel support) are not pulled back. Inside the melt that
 clamp lets the viscous flow open voids that nothing closes, and with tension allowed Jacobi
-may oscillate; so we solve the same system by conjugate gradients preconditioned with
-alpha, clamping only at the free surface (particles whose kernel-weighted neighbourhood
-centre is offset by more than 0.15 H, or with < 20 neighbours, and whose source is an
+may oscillate; so we solve the same system by conjugate gradients (the shared ``core.pcg``)
+preconditioned with alpha, clamping only at the free surface (particles whose kernel-weighted
+neighbourhood centre is offset by more than 0.15 H, or with < 20 neighbours, and whose source is an
 expansion: their k is held at 0). Both solves are warm-started with half of the previous
 step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
 mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
@@ -49,7 +49,7 @@ Particle volumes are calibrated so that a rest lattice has rho = rho0 exactly.
 import numpy as np
 
 from taichi_mex.backend import ti
-from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.pcg import PCG, Stop
 from taichi_mex.core.state import FLUID, INLET, NOZZLE, FluidIndex
 
 
@@ -133,21 +133,16 @@ class DFSPH:
         self.b = ti.field(float, shape=cap)  # source (scaled to the system's right-hand side)
         self.active = ti.field(ti.i32, shape=cap)
         self.k = ti.field(float, shape=cap)  # this solve's k
-        self.r = ti.field(float, shape=cap)
-        self.z = ti.field(float, shape=cap)
-        self.p = ti.field(float, shape=cap)
-        self.Ap = ti.field(float, shape=cap)
+        # the solves' CG (rows: fluid and inlet rows); its error is the mean predicted error
+        # (ref: the fluid count, Stop.scale: dt^2 or dt), its error_max the largest
+        self.cg = PCG(self, self.rows, cap, dim=1, chunk=self.chunk, track_max=True)
+        self.r, self.z, self.p, self.Ap = self.cg.r, self.cg.z, self.cg.p, self.cg.Ap
+        self.term, self.sum = self.cg.term, self.cg.sum  # scratch for the solves' other sums
         self.Gp = ti.Vector.field(3, float, shape=cap)
         self.grad_c = ti.Vector.field(3, float, shape=cap)  # gradient of the kernel sum, for shifting
         # 2 sum_fluid V grad W + sum_wall V grad W: what a uniform k adds to G(k)_i per unit k
         self.grad_uniform = ti.Vector.field(3, float, shape=cap)
         self.kappa_predicted = ti.field(float, shape=cap)  # kappa as the predictor applied it
-        self.term = ti.field(float, shape=cap)
-        self.sum = BlockSum(cap)
-        # rz, cg alpha, beta, mean error, iterations, done, n_fluid, initial rz (f64: the CG
-        # scalars come from f64 sums)
-        self.s = ti.field(ti.f64, shape=8)
-        self.emax = ti.field(float, shape=())  # largest |residual| (scaled like s[3] by `scale`)
         self.rho_peak = ti.field(float, shape=())  # densest melt at x_n (set by prepare)
         self.rho_row = ti.field(float, shape=cap)  # density an inlet row sees (fluid's share)
         # the density a melt particle's source starts from: rho at x_n, or, in a compression
@@ -155,7 +150,7 @@ class DFSPH:
         # correct_compression)
         self.rho_src = ti.field(float, shape=cap)
         self.compress_only = ti.field(ti.i32, shape=())  # 1: this solve corrects compression only
-        self.step_dt = ti.field(float, shape=())
+        self.step_dt = ti.field(float, shape=())  # this step's dt (solves, moved_compression)
         self.kappa_kept = ti.field(float, shape=cap)  # kappa before a compression correction
         self.stats = {"density_iterations": 0, "divergence_iterations": 0}
 
@@ -273,18 +268,18 @@ class DFSPH:
         acc += (self.state.v[i] - self.state.v[j]).dot(g)  # walls move: their v is set
 
     @ti.func
-    def _apply(self, n, guard):
-        """Gp = G(p) for fluid, Ap = D(Gp) on active particles."""
+    def _apply(self, n, skip):
+        """Gp = G(p) for fluid, Ap = D(Gp) on active particles (nothing when skip != 0)."""
         for slot in range(n):
             i = self.rows.index[slot]
-            if guard == 0:
+            if skip == 0:
                 g = ti.Vector([0.0, 0.0, 0.0])
                 if self.state.phase[i] == FLUID:
                     self.grid.for_each_neighbour(i, self._grad_task, g)
                 self.Gp[i] = g
         for slot in range(n):
             i = self.rows.index[slot]
-            if guard == 0:
+            if skip == 0:
                 a = 0.0
                 if self.active[i] == 1:
                     self.grid.for_each_neighbour(i, self._div_task, a)
@@ -292,10 +287,11 @@ class DFSPH:
 
     @ti.func
     def _source(self, n, dt, density: ti.template()):
-        """b = (rho*/rho0 - 1)/dt^2 or D(v)/dt; fix the active set; term = |b| for the error."""
+        """b = (rho*/rho0 - 1)/dt^2 or D(v)/dt, and r = b; fix the active set; term = |b| for
+        the error."""
         for slot in range(n):
             i = self.rows.index[slot]
-            if self.s[5] != 0.0:
+            if self.cg.s.done[None] != 0:
                 continue
             b = 0.0
             act = 0
@@ -334,6 +330,7 @@ class DFSPH:
                     else:
                         b = 0.0
             self.b[i] = b
+            self.r[i] = b  # r0 of the PCG (b = 0 off the active rows)
             self.active[i] = act
             self.term[i] = ti.abs(b)
 
@@ -409,13 +406,23 @@ class DFSPH:
 
     # ------------------------------------------------------------------ CG
     @ti.kernel
-    def _start(self, n: ti.i32, dt: float, density: ti.template(), scale: float):
-        """Warm start, then r0 = b, z0 = alpha r0, p0 = z0.
+    def _start(self, n: ti.i32, dt: float, density: ti.template(), tol: ti.f64, tol_max: ti.f64,
+               rel2: ti.f64, scale: ti.f64, min_iter: ti.i32,
+               max_iter: ti.i32) -> ti.types.vector(4, ti.f64):
+        """Warm start, then the PCG from r0 = b (0 off the active rows: _source).
 
-        The divergence solve starts from half of last step's k (Bender & Koschier). The
-        density solve is incremental: the whole of last step's pressure was already applied
-        with gravity before the viscous solve (``pressure_predictor``), so it solves for the
-        change only and adds it to kappa."""
+        The divergence solve starts from half of last step's k (Bender & Koschier), applied
+        to the velocity before its source is taken, so r0 = b. The density solve is
+        incremental: the whole of last step's pressure was already applied with gravity
+        before the viscous solve (``pressure_predictor``), so it solves for the change only
+        and adds it to kappa. The error's sum is divided by the fluid count (ref)."""
+        self.cg.reset()
+        self.step_dt[None] = dt
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.term[i] = 1.0 if self.state.phase[i] == FLUID else 0.0
+        self.sum.sum(self.term, self.rows.total[None])
+        self.cg.s.ref[None] = ti.max(self.sum.total[None], 1.0)
         if ti.static(not density):
             self._source(n, dt, density)
             for slot in range(n):
@@ -424,81 +431,46 @@ class DFSPH:
                 if self.active[i] == 1:
                     k = 0.5 * self.kappa_v[i] / dt
                 self.k[i] = k
+                self.kappa_v[i] = k
             self._kick(n, dt, self.k)
         self._source(n, dt, density)
-        for slot in range(n):
-            i = self.rows.index[slot]
-            if ti.static(not density):
-                self.kappa_v[i] = self.k[i]
-            r = self.b[i] if self.active[i] == 1 else 0.0
-            self.r[i] = r
-            z = self.alpha[i] * r
-            self.z[i] = z
-            self.p[i] = z
-            self.term[i] = r * z
-        self.sum.sum(self.term, self.rows.total[None])
-        self.s[0] = self.sum.total[None]
-        self.s[7] = self.sum.total[None]  # r0 . z0, for the relative stop
-        for slot in range(n):
-            i = self.rows.index[slot]
-            self.term[i] = ti.abs(self.r[i])
-        self.sum.sum(self.term, self.rows.total[None])
-        self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-        self._largest(n, scale)
+        self.cg.begin(n, density, tol, tol_max, rel2, scale, min_iter, max_iter)
+        return self.cg.report()
+
+    # the PCG's protocol (mode: the density solve, else the divergence solve)
+    @ti.func
+    def apply(self, n, skip, mode: ti.template()):
+        """Ap = D(G p) (Gp kept: advance moves the velocity with it)."""
+        self._apply(n, skip)
 
     @ti.func
-    def _largest(self, n, scale):
-        self.emax[None] = 0.0
-        for slot in range(n):
-            i = self.rows.index[slot]
-            ti.atomic_max(self.emax[None], self.term[i] * scale)
+    def precondition(self, i, r, mode: ti.template()):
+        return self.alpha[i] * r
+
+    @ti.func
+    def advance(self, i, a, mode: ti.template()):
+        """k += a p, and the velocity with it: G is linear, so v -= dt a G(p) as we go."""
+        if self.state.phase[i] == FLUID:
+            self.state.v[i] -= self.step_dt[None] * a * self.Gp[i]
+        if ti.static(mode):
+            self.kappa[i] += a * self.p[i]
+        else:
+            self.kappa_v[i] += a * self.p[i]
+
+    @ti.func
+    def residual_term(self, i, r, mode: ti.template()):
+        return ti.abs(r)  # times Stop.scale: the predicted density (divergence) error
 
     @ti.kernel
-    def _iterate(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
-                 scale: float, min_iter: ti.i32, rel2: ti.f64) -> ti.types.vector(3, float):
-        for _ in ti.static(range(self.chunk)):
-            self._apply(n, ti.cast(self.s[5], ti.i32))
+    def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: ti.f64,
+                tol_max: ti.f64, rel2: ti.f64, scale: ti.f64, min_iter: ti.i32,
+                max_iter: ti.i32) -> ti.types.vector(4, ti.f64):
+        """Bender & Koschier's relaxed Jacobi sweeps (k = omega alpha b), `chunk` per launch,
+        on the PCG's scalars and stopping rule (rel2 unused: no r.z here)."""
+        for _step in ti.static(range(self.chunk)):
             for slot in range(n):
                 i = self.rows.index[slot]
-                self.term[i] = self.p[i] * self.Ap[i]
-            self.sum.sum(self.term, self.rows.total[None])
-            self._alpha_step()
-            for slot in range(n):
-                i = self.rows.index[slot]
-                if self.s[5] == 0.0:
-                    a = ti.cast(self.s[1], float)
-                    if self.state.phase[i] == FLUID:
-                        self.state.v[i] -= dt * a * self.Gp[i]  # G is linear: apply as we go
-                    if ti.static(density):
-                        self.kappa[i] += a * self.p[i]
-                    else:
-                        self.kappa_v[i] += a * self.p[i]
-                    r = self.r[i] - a * self.Ap[i]
-                    self.r[i] = r
-                    self.z[i] = self.alpha[i] * r
-                    self.term[i] = ti.abs(r)
-            self.sum.sum(self.term, self.rows.total[None])
-            self._largest(n, scale)
-            self._error(scale)
-            for slot in range(n):
-                i = self.rows.index[slot]
-                self.term[i] = self.r[i] * self.z[i]
-            self.sum.sum(self.term, self.rows.total[None])
-            self._beta(tol, tol_local, min_iter, rel2)
-            for slot in range(n):
-                i = self.rows.index[slot]
-                if self.s[5] == 0.0:
-                    self.p[i] = self.z[i] + ti.cast(self.s[2], float) * self.p[i]
-        return ti.Vector([ti.cast(self.s[3], float), ti.cast(self.s[4], float), self.emax[None]])
-
-    @ti.kernel
-    def _jacobi(self, n: ti.i32, dt: float, density: ti.template(), tol: float, tol_local: float,
-                scale: float, min_iter: ti.i32) -> ti.types.vector(3, float):
-        """Bender & Koschier's relaxed Jacobi sweeps (k = omega alpha b), `chunk` per launch."""
-        for _ in ti.static(range(self.chunk)):
-            for slot in range(n):
-                i = self.rows.index[slot]
-                if self.s[5] == 0.0:
+                if self.cg.s.done[None] == 0:
                     k = self.omega * self.alpha[i] * self.b[i]
                     self.p[i] = k
                     if ti.static(density):
@@ -507,85 +479,33 @@ class DFSPH:
                         self.kappa_v[i] += k
             for slot in range(n):
                 i = self.rows.index[slot]
-                if self.s[5] == 0.0:
+                if self.cg.s.done[None] == 0:
                     g = ti.Vector([0.0, 0.0, 0.0])
                     if self.state.phase[i] == FLUID:
                         self.grid.for_each_neighbour(i, self._grad_task, g)
                     self.Gp[i] = g
             for slot in range(n):
                 i = self.rows.index[slot]
-                if self.s[5] == 0.0 and self.state.phase[i] == FLUID:
+                if self.cg.s.done[None] == 0 and self.state.phase[i] == FLUID:
                     self.state.v[i] -= dt * self.Gp[i]
             self._source(n, dt, density)
-            self.sum.sum(self.term, self.rows.total[None])
-            self._largest(n, scale)
-            self._count_and_check(tol, tol_local, scale, min_iter)
-        return ti.Vector([ti.cast(self.s[3], float), ti.cast(self.s[4], float), self.emax[None]])
-
-    @ti.func
-    def _count_and_check(self, tol, tol_local, scale, min_iter):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.s[5] == 0.0:
-                self.s[4] += 1.0
-                self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-                if self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter:
-                    self.s[5] = 1.0
-
-    @ti.func
-    def _alpha_step(self):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.s[5] == 0.0:
-                pAp = self.sum.total[None]
-                self.s[1] = self.s[0] / pAp if pAp > 0.0 else 0.0
-                self.s[4] += 1.0
-
-    @ti.func
-    def _error(self, scale):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.s[5] == 0.0:
-                self.s[3] = self.sum.total[None] * scale / ti.max(self.s[6], 1.0)
-
-    @ti.func
-    def _beta(self, tol, tol_local, min_iter, rel2):
-        """Stop when the mean and the largest predicted error are below their tolerances, at
-        least min_iter iterations ran, and r.z has fallen below rel2 times r0.z0; else
-        beta = r.z / last r.z."""
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.s[5] == 0.0:
-                rz = self.sum.total[None]
-                if (self.s[3] <= tol and self.emax[None] <= tol_local and self.s[4] >= min_iter
-                        and rz <= rel2 * self.s[7]):
-                    self.s[5] = 1.0
-                else:
-                    self.s[2] = rz / self.s[0] if self.s[0] > 0.0 else 0.0
-                    self.s[0] = rz
+            self.cg.record(tol, tol_max, scale, min_iter, max_iter)
+        return self.cg.report()
 
     # ------------------------------------------------------------------ solves
     def _solve(self, dt: float, density: bool, tol: float, tol_local: float, min_iter: int,
                max_iter: int, rel2: float = 1e300) -> tuple[int, float]:
         n = self.rows.n
-        self.s.fill(0.0)
-        self._count_fluid(n)
         # mean |residual| times dt^2 (density) or dt (divergence) = mean predicted error
-        scale = dt * dt if density else dt
-        self._start(n, dt, density, scale)
-        err = float(self.s[3])
-        self.last_max_error = float(self.emax[None])
-        iters = 0
-        if err > tol or self.last_max_error > tol_local or min_iter > 0:
-            while iters < max_iter:
-                if self.method == "jacobi":
-                    out = self._jacobi(n, dt, density, tol, tol_local, scale, min_iter)
-                else:
-                    out = self._iterate(n, dt, density, tol, tol_local, scale, min_iter, rel2)
-                err, iters = float(out[0]), int(out[1])
-                self.last_max_error = float(out[2])
-                if float(self.s[5]) > 0:
-                    break
+        stop = Stop(tol=tol, tol_max=tol_local, rel2=rel2, scale=dt * dt if density else dt,
+                    min_iter=min_iter, max_iter=max_iter)
+        out = self._start(n, dt, density, *stop)
+        if self.method == "jacobi":
+            while out[3] == 0.0:
+                out = self._jacobi(n, dt, density, *stop)
+            iters, err, self.last_max_error = int(out[2]), float(out[0]), float(out[1])
+        else:
+            iters, err, self.last_max_error = self.cg.iterate(n, stop, density, out)
         return iters, err
 
     def creeping(self, dt: float) -> bool:
@@ -658,16 +578,6 @@ class DFSPH:
             self.kappa.copy_from(self.kappa_kept)
         self.compress_only[None] = 0
         return iters, err
-
-    @ti.kernel
-    def _count_fluid(self, n: ti.i32):
-        for i in range(self.rows.total[None]):
-            self.term[i] = 0.0  # off the list it stays 0 for this solve's sums
-        for slot in range(n):
-            i = self.rows.index[slot]
-            self.term[i] = 1.0 if self.state.phase[i] == FLUID else 0.0
-        self.sum.sum(self.term, self.rows.total[None])
-        self.s[6] = self.sum.total[None]
 
     @ti.kernel
     def max_fluid_speed(self, n: ti.i32) -> float:

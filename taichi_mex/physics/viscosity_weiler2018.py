@@ -9,9 +9,9 @@ Backward Euler on the SPH viscosity operator (their Eq. 8, d = 10 in 3D):
 
 with mu_ij the harmonic mean (keeps the matrix symmetric for temperature-dependent mu) and
 mu_b = mu_i for no-slip walls (the plate, the nozzle, solidified melt, the inlet column).
-The system is symmetric positive definite; it is solved matrix-free by conjugate gradients
-with a 3x3 block-Jacobi preconditioner, warm-started with the previous step's velocity
-change, to a relative residual |r| <= tol |b|.
+The system is symmetric positive definite; it is solved matrix-free by the shared
+preconditioned conjugate gradients (``core.pcg``) with a 3x3 block-Jacobi preconditioner,
+warm-started with the previous step's velocity change, to a relative residual |r| <= tol |b|.
 
 The constant d = 10 makes the operator exact in the continuum; on the particle lattice at
 the low neighbour counts DFSPH runs with (cubic spline, H = 2 dx: ~33 neighbours) the sum
@@ -23,7 +23,7 @@ the set viscosity (see ``lattice_laplacian_factor``).
 import numpy as np
 
 from taichi_mex.backend import ti
-from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.pcg import PCG, Stop
 from taichi_mex.core.state import FLUID
 
 
@@ -64,19 +64,15 @@ class ImplicitViscosity:
         cap = state.capacity
         self.vdiff = state.add("viscosity_warm_start", 3)
         self.Vb = mass_kg / rho0  # wall particles stand for one lattice cell, like fluid
-        self.x = ti.Vector.field(3, float, shape=cap)
+        self.x = ti.Vector.field(3, float, shape=cap)  # the new velocity
         self.rhs = ti.Vector.field(3, float, shape=cap)
-        self.r = ti.Vector.field(3, float, shape=cap)
-        self.z = ti.Vector.field(3, float, shape=cap)
-        self.p = ti.Vector.field(3, float, shape=cap)
-        self.Ap = ti.Vector.field(3, float, shape=cap)
         self.Binv = ti.Matrix.field(3, 3, float, shape=cap)
         # c F of every listed pair, computed once per step: the iterations only read it
         self.cF = ti.field(float, shape=(cap, grid.max_neighbours))
-        self.term = ti.field(float, shape=cap)
-        self.sum = BlockSum(cap)
-        # rz, alpha, beta, |b|^2, |r|^2, iterations, done (f64, as the sums they come from)
-        self.scalars = ti.field(ti.f64, shape=8)
+        self.dt = ti.field(float, shape=())  # this solve's step (the operator depends on it)
+        # error = |r|^2 / |b|^2 (ref = |b|^2), CG iterations run on the fluid rows
+        self.cg = PCG(self, fluid, cap, dim=3, chunk=self.chunk)
+        self.r, self.z, self.p, self.Ap = self.cg.r, self.cg.z, self.cg.p, self.cg.Ap
         self.stats = {"viscosity_iterations": 0, "viscosity_residual": 0.0}
 
     # ---------------------------------------------------------------- operator
@@ -122,54 +118,44 @@ class ImplicitViscosity:
 
     # ---------------------------------------------------------------- setup
     @ti.kernel
-    def _setup(self, n: ti.i32, dt: float) -> float:
-        """rhs = v* - dt sum_b (wall velocity term); B^-1; x0 = v* + last change; r0, z0, p0."""
-        for i in range(self.fl.total[None]):
-            self.term[i] = 0.0  # off the list it stays 0 for this solve's sums
+    def _setup(self, n: ti.i32, dt: float, tol: ti.f64, tol_max: ti.f64, rel2: ti.f64,
+               scale: ti.f64, min_iter: ti.i32, max_iter: ti.i32) -> ti.types.vector(4, ti.f64):
+        """rhs = v* - dt sum_b (wall velocity term); B^-1; x0 = v* + last change; the PCG from
+        r0 = rhs - A x0, its error |r|^2 / |rhs|^2 (ref = |rhs|^2)."""
+        self.cg.reset()
+        self.dt[None] = dt
         for slot in range(n):
             i = self.fl.index[slot]
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector.zero(float, 12)
                 self.grid.for_each_listed(i, self._setup_task, acc)
-                self.rhs[i] = self.state.v[i] - dt * ti.Vector([acc[0], acc[1], acc[2]])
+                rhs = self.state.v[i] - dt * ti.Vector([acc[0], acc[1], acc[2]])
+                self.rhs[i] = rhs
+                self.cg.term[i] = rhs.norm_sqr()
                 B = ti.Matrix([[acc[3], acc[4], acc[5]], [acc[6], acc[7], acc[8]],
                                [acc[9], acc[10], acc[11]]])
                 self.Binv[i] = (ti.Matrix.identity(float, 3) - dt * B).inverse()
                 self.x[i] = self.state.v[i] + self.vdiff[i]
-                self.p[i] = self.x[i]
             else:
                 self.rhs[i] = ti.Vector([0.0, 0.0, 0.0])
                 self.x[i] = ti.Vector([0.0, 0.0, 0.0])
-                self.p[i] = ti.Vector([0.0, 0.0, 0.0])
-        self._apply(n, dt)  # Ap = A x0
-        for slot in range(n):
-            i = self.fl.index[slot]
-            r = self.rhs[i] - self.Ap[i]
-            self.r[i] = r
-            z = self.Binv[i] @ r
-            self.z[i] = z
-            self.p[i] = z
-            self.term[i] = r.dot(z)
-        self.sum.sum(self.term, self.fl.total[None])
-        self.scalars[0] = self.sum.total[None]
-        for slot in range(n):
-            i = self.fl.index[slot]
-            self.term[i] = self.rhs[i].norm_sqr()
-        self.sum.sum(self.term, self.fl.total[None])
-        self.scalars[3] = self.sum.total[None]
-        for slot in range(n):
-            i = self.fl.index[slot]
-            self.term[i] = self.r[i].norm_sqr()
-        self.sum.sum(self.term, self.fl.total[None])
-        self.scalars[4] = self.sum.total[None]
-        return ti.cast(self.scalars[4] / ti.max(self.scalars[3], 1e-300), float)
+            self.p[i] = self.x[i]
+        self.cg.sum.sum(self.cg.term, self.fl.total[None])
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self.cg.s.ref[None] = self.cg.sum.total[None]  # no fluid: r = 0, converged at once
+        self.apply(n, 0, 0)  # Ap = A x0
+        self.cg.begin_from(n, self.rhs, 0, tol, tol_max, rel2, scale, min_iter, max_iter)
+        return self.cg.report()
 
+    # ---------------------------------------------------------------- the PCG's protocol
     @ti.func
-    def _apply(self, n, dt):
-        # scalars[6] = 1 once converged: later unrolled iterations of a launch do nothing
+    def apply(self, n, skip, mode: ti.template()):
+        """Ap = (I - dt B) p (B: the viscous sums of the fluid pairs)."""
+        dt = self.dt[None]
         for slot in range(n):
             i = self.fl.index[slot]
-            if self.scalars[6] == 0.0:
+            if skip == 0:
                 if self.state.phase[i] == FLUID:
                     acc = ti.Vector([0.0, 0.0, 0.0])
                     self.grid.for_each_listed(i, self._apply_task, acc)
@@ -177,66 +163,17 @@ class ImplicitViscosity:
                 else:
                     self.Ap[i] = ti.Vector([0.0, 0.0, 0.0])
 
-    # ---------------------------------------------------------------- CG iterations
-    @ti.kernel
-    def _iterate(self, n: ti.i32, dt: float, tol2: float) -> ti.types.vector(2, float):
-        for _ in ti.static(range(self.chunk)):
-            self._apply(n, dt)
-            for slot in range(n):
-                i = self.fl.index[slot]
-                self.term[i] = self.p[i].dot(self.Ap[i])
-            self.sum.sum(self.term, self.fl.total[None])
-            self._alpha()
-            for slot in range(n):
-                i = self.fl.index[slot]
-                if self.scalars[6] == 0.0:
-                    a = ti.cast(self.scalars[1], float)
-                    self.x[i] += a * self.p[i]
-                    r = self.r[i] - a * self.Ap[i]
-                    self.r[i] = r
-                    z = self.Binv[i] @ r
-                    self.z[i] = z
-                    self.term[i] = r.norm_sqr()
-            self.sum.sum(self.term, self.fl.total[None])
-            self._residual(tol2)
-            for slot in range(n):
-                i = self.fl.index[slot]
-                self.term[i] = self.r[i].dot(self.z[i])
-            self.sum.sum(self.term, self.fl.total[None])
-            self._beta()
-            for slot in range(n):
-                i = self.fl.index[slot]
-                if self.scalars[6] == 0.0:
-                    self.p[i] = self.z[i] + ti.cast(self.scalars[2], float) * self.p[i]
-        return ti.Vector([ti.cast(self.scalars[4] / ti.max(self.scalars[3], 1e-300), float),
-                          ti.cast(self.scalars[5], float)])
+    @ti.func
+    def precondition(self, i, r, mode: ti.template()):
+        return self.Binv[i] @ r
 
     @ti.func
-    def _alpha(self):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.scalars[6] == 0.0:
-                pAp = self.sum.total[None]
-                self.scalars[1] = self.scalars[0] / pAp if pAp > 0 else 0.0
-                self.scalars[5] += 1.0
+    def advance(self, i, alpha, mode: ti.template()):
+        self.x[i] += alpha * self.p[i]
 
     @ti.func
-    def _residual(self, tol2):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.scalars[6] == 0.0:
-                self.scalars[4] = self.sum.total[None]
-                if self.scalars[4] <= tol2 * self.scalars[3]:
-                    self.scalars[6] = 1.0
-
-    @ti.func
-    def _beta(self):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self.scalars[6] == 0.0:
-                rz_new = self.sum.total[None]
-                self.scalars[2] = rz_new / self.scalars[0] if self.scalars[0] > 0 else 0.0
-                self.scalars[0] = rz_new
+    def residual_term(self, i, r, mode: ti.template()):
+        return r.norm_sqr()
 
     @ti.kernel
     def _finish(self, n: ti.i32):
@@ -251,17 +188,8 @@ class ImplicitViscosity:
         """Replace the fluid velocities v* by the implicit viscous update; returns
         (iterations, relative residual)."""
         n = self.fl.n
-        self.scalars.fill(0.0)
-        rel2 = float(self._setup(n, dt))
-        iters = 0
-        tol2 = self.tol * self.tol
-        if rel2 > tol2:
-            while iters < self.max_iterations:
-                out = self._iterate(n, dt, tol2)
-                rel2 = float(out[0])
-                iters = int(out[1])
-                if rel2 <= tol2:
-                    break
+        stop = Stop(tol=self.tol * self.tol, max_iter=self.max_iterations)
+        iters, rel2, _ = self.cg.iterate(n, stop, 0, self._setup(n, dt, *stop))
         self._finish(n)
         self.stats["viscosity_iterations"] = iters
         self.stats["viscosity_residual"] = rel2 ** 0.5
