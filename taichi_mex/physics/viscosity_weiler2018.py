@@ -44,6 +44,10 @@ def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> floa
 
 @ti.data_oriented
 class ImplicitViscosity:
+    #: per-neighbour coefficients and block preconditioner, rebuilt by every solve's setup:
+    #: not part of a checkpoint (sim/checkpoint.py)
+    checkpoint_skip = ("cF", "Binv")
+
     def __init__(self, state, grid, kernel, viscosity, mass_kg: float, rho0: float,
                  spacing_m: float, tolerance: float, max_iterations: int, fluid,
                  no_slip: bool = True, chunk: int = 4):

@@ -5,7 +5,8 @@ What is kept is found, not listed: every Taichi field and every plain value (num
 containers, numpy arrays) held by the particle state, the solver and the physics modules it
 owns, the inlet, the viscosity and the scene, walked down through taichi_mex objects. A module
 that adds a field or a counter is therefore checkpointed without an edit here. Left out are
-what the run rebuilds or never changes: the neighbour grid, kernels, the toolpath and options.
+what the run rebuilds or never changes: the neighbour grid, kernels, the toolpath and options,
+and the scratch a class names in ``checkpoint_skip`` (recomputed at the start of every use).
 
 The file is a pickle (``checkpoint.pkl``, written atomically): resume only folders you trust.
 It records the taichi_mex version and the run description, and a resume against either
@@ -46,7 +47,10 @@ def _walk(obj, path: str, seen: set, fields: dict, values: dict) -> None:
     if id(obj) in seen:
         return
     seen.add(id(obj))
+    scratch = getattr(type(obj), "checkpoint_skip", ())
     for name, value in vars(obj).items():
+        if name in scratch:
+            continue
         key = f"{path}.{name}"
         if isinstance(value, ti.Field):
             fields[key] = value
