@@ -147,7 +147,7 @@ BLOCK = ("gcode/paper_block_3x3.gcode",)
 CASES = {
     "hydrostatic": Case(
         "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
-        [(f"{s} {dx} mm", scene("hydrostatic", *HYDRO, "--scheme", s, "--spacing-mm", dx, "--until", 0.3))
+        [(f"{s} {dx} mm", scene("hydrostatic", *HYDRO, "--scheme", s, "--spacing-mm", dx, "--until", 0.6))
          for s, dx in (("edac", 1), ("edac", 0.667), ("dfsph", 1), ("dfsph", 0.667), ("dfsph", 0.5))],
         [(f"{s} 1.5 mm", scene("hydrostatic", *HYDRO, "--scheme", s, "--spacing-mm", 1.5, "--until", 0.1))
          for s in ("edac", "dfsph")],
