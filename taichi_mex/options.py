@@ -330,6 +330,9 @@ class EDACOptions:
     cfl: float = opt(0.25, help="dt <= cfl h / (c_s + |v|max) (-)",
                      check=Range(0.0, 1.0, lo_open=True))
     clamp_wall_pressure: bool = opt(False, help="clamp negative wall pressure to zero", check=Flag())
+    list_skin: float = opt(0.15, help="Verlet skin of the neighbour lists as a fraction of the "
+                           "support radius (-): EDAC steps move particles so little that lists "
+                           "built with it last dozens of steps", check=Range(0.0, 1.0))
 
 
 @dataclass
@@ -387,6 +390,13 @@ class DFSPHStabilisers:
     clamp_alarm: float = opt(
         0.25, help="a step that slows more than this fraction of the melt to the clamp speed "
         "stops the run as blown up (-)", check=Range(0.0, 1.0, lo_open=True))
+    surface_offset_h: float = opt(
+        0.15, help="melt whose neighbourhood centre lies more than this fraction of the support "
+        "radius off the particle counts as free surface and takes no tension (-)",
+        check=Range(0.0, 1.0, lo_open=True))
+    surface_min_neighbours: int = opt(
+        20, help="melt with fewer neighbours than this counts as free surface and takes no "
+        "tension, nor a divergence correction (-)", check=Range(1, 200, integer=True))
 
 
 @dataclass

@@ -137,3 +137,32 @@ def test_every_material_loads_and_runs_a_short_bead(tmp_path, name):
     assert summary["deposited_volume_mm3"] > 0 and "error" not in summary
     config = json.loads((tmp_path / name / "config.json").read_text())
     assert config["material"]["name"].lower() == name and config["material_source"] == name
+
+
+def test_config_json_re_runs_the_same_run(tmp_path, capsys):
+    """python -m taichi_mex --config DIR/config.json --out DIR2 gives the same particles,
+    steps and deposited volume."""
+    first = tmp_path / "first"
+    args = ["--resolution", "0.1", "--until", "0.34", "--no-snapshots", "--quiet"]
+    assert main(args + ["--out", str(first)]) == 0
+    assert main(["--config", str(first / "config.json"), "--out", str(tmp_path / "again")]) == 0
+    a, b = (json.loads((tmp_path / d / "summary.json").read_text()) for d in ("first", "again"))
+    for key in ("particles_active", "steps", "deposited_volume_mm3"):
+        assert a[key] == b[key]
+    assert json.loads((tmp_path / "again" / "config.json").read_text()) == \
+        json.loads((first / "config.json").read_text())
+
+
+def test_a_users_material_file(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text('name = "my PLA"\ndensity_kg_m3 = 1100.0\nviscosity_pa_s = 3000.0\n'
+                    '[sources]\ndensity_kg_m3 = "my lab, 2026"\n')
+    spec = RunSpec.create("print", material=str(path))
+    assert spec.material.name == "my PLA" and spec.material.density_kg_m3 == 1100.0
+    assert spec.material.glass_transition_c == 60.0  # the rest: the defaults
+    path.write_text('name = "bad"\ndensity_kg_m3 = -1.0\n')
+    with pytest.raises(Exception, match="density_kg_m3"):
+        RunSpec.create("print", material=str(path))
+    path.write_text('name = "typo"\ndensitty_kg_m3 = 1.0\n')
+    with pytest.raises(Exception, match="did you mean material.density_kg_m3"):
+        RunSpec.create("print", material=str(path))

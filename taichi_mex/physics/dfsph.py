@@ -20,7 +20,8 @@ free-surface particles (partial kernel support) are not pulled back. Inside the 
 clamp lets the viscous flow open voids that nothing closes, and with tension allowed Jacobi
 may oscillate; so we solve the same system by conjugate gradients (the shared ``core.pcg``)
 preconditioned with alpha, clamping only at the free surface (particles whose kernel-weighted
-neighbourhood centre is offset by more than 0.15 H, or with < 20 neighbours, and whose source is an
+neighbourhood centre is offset by more than surface_offset_h H (0.15), or with fewer than
+surface_min_neighbours (20) neighbours, and whose source is an
 expansion: their k is held at 0). Both solves are warm-started with half of the previous
 step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
 mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
@@ -101,6 +102,8 @@ class DFSPH:
         self.rel2 = 1e300 if rel is None or opts.method != "cg" else float(rel) ** 2
         self.creeping_diffusion = float(st.creeping_diffusion)
         self.tension_relaxation = float(st.tension_relaxation)
+        self.surface_offset = float(st.surface_offset_h)
+        self.surface_min_neighbours = int(st.surface_min_neighbours)
         self.divergence_tension = st.divergence_tension
         self.tension_form = st.tension_form
         self.release_growing_only = bool(st.release_growing_only)
@@ -210,7 +213,8 @@ class DFSPH:
                 ti.atomic_max(self.rho_peak[None], self.state.rho[i])
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
-                no_tension = offset.norm() > 0.15 * self.K.H or acc[1] < 20.0 or acc[5] > 0.0
+                no_tension = (offset.norm() > self.surface_offset * self.K.H
+                              or acc[1] < self.surface_min_neighbours or acc[5] > 0.0)
                 self.surface[i] = 1 if no_tension else 0
                 f = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._factor_task, f)
@@ -311,7 +315,7 @@ class DFSPH:
                     elif b < 0.0:
                         b *= self._tension_fraction(i, dt)  # pull gaps shut over several steps
                 else:
-                    if self.n_count[i] < 20:
+                    if self.n_count[i] < self.surface_min_neighbours:
                         act = 0  # too few neighbours for a divergence estimate
                         b = 0.0
                     elif ti.static(self.divergence_tension == "none") and b <= 0.0:

@@ -219,7 +219,7 @@ class Simulation:
         # ~40 scalar fields across core, scheme and sort buffers, plus neighbour lists
         from taichi_mex.sim.solver import SOLVERS
 
-        skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0)
+        skin = run.edac.list_skin if run.scheme == "edac" else 0.0  # fraction of the support
         max_nbr = self._max_neighbours(factor * (1.0 + skin))
         cached = getattr(SOLVERS[run.scheme], "cached_per_neighbour", 0)  # reals per list slot
         per_particle = int(_TEMP_FACTOR * 40 * fp + (4 + cached * fp) * max_nbr)
@@ -333,7 +333,7 @@ class Simulation:
         self.viscosity = MeltViscosity(self.state, self.material,
                                        self.thermal.T if self.thermal else None,
                                        scale=self.viscosity_scale)
-        skin = getattr(SOLVERS[run.scheme], "list_skin", 0.0) * self.kernel.H
+        skin = (run.edac.list_skin if run.scheme == "edac" else 0.0) * self.kernel.H
         self.grid = NeighbourGrid(self.state, self.plan.domain_lo_m, self.plan.domain_hi_m,
                                   self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
         self.state.on_append.append(lambda _sl, _ph: setattr(self.grid, "stale", True))

@@ -55,9 +55,6 @@ class EDACSolver:
     """
 
     name = "edac"
-    #: Verlet skin as a fraction of the support radius: EDAC steps move particles so little
-    #: that lists built with it last dozens of steps
-    list_skin = 0.15
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
                  speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
@@ -127,7 +124,6 @@ class DFSPHSolver:
     """
 
     name = "dfsph"
-    list_skin = 0.0
     #: the implicit viscosity caches one coefficient per neighbour-list slot
     cached_per_neighbour = 1
 
@@ -318,7 +314,6 @@ class StaticSolver:
     For scenes such as the aluminium beam, whose solid does not move."""
 
     name = "static"
-    list_skin = 0.0
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
                  speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
