@@ -560,8 +560,11 @@ class RunOptions:
     animation_frames: int = opt(60, help="frames of the animation, when output_every_s is not "
                                 "given (it then also sets the HDF5 frames)",
                                 check=Range(2, 10000, integer=True))
-    plate_layers: int = opt(3, help="particle layers of the build plate",
-                            check=Range(1, 50, integer=True))
+    plate_layers: int | None = opt(
+        None, help="particle layers of the build plate and tank walls; None: as many as the "
+        "kernel reaches (the support radius in spacings, rounded up: 2 for DFSPH's cubic "
+        "spline, 3 for EDAC's Wendland), since deeper layers enter no sum",
+        check=Either(NONE, Range(1, 50, integer=True)))
     margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",
                            check=NonNegative())
     progress: bool = opt(True, help="show a progress bar", check=Flag(), flag="--quiet",
@@ -599,6 +602,12 @@ class RunOptions:
         if self.scheme == "static":  # heat only: Cleary & Monaghan used the cubic spline
             return self.kernel or "cubic", self.support_factor or 2.0
         return self.kernel or "cubic", self.support_factor or 2.0
+
+    def wall_layers(self) -> int:
+        """Particle layers of walls: plate_layers, or the kernel's reach in spacings."""
+        if self.plate_layers is not None:
+            return self.plate_layers
+        return int(math.ceil(self.resolved_kernel()[1] - 1e-9))
 
     def validate(self) -> None:
         validate_fields(self, "run.")

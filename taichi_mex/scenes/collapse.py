@@ -49,7 +49,7 @@ class CollapseScene:
         nu = material.viscosity_pa_s / material.density_kg_m3
         r_end = float(huppert_radius(self.until_s, volume, nu, run.gravity_m_s2))
         reach = max(1.5 * r_end, 2.0 * self.R) + 4 * dx
-        layers = max(run.plate_layers, int(math.ceil(run.resolved_kernel()[1])))
+        layers = run.wall_layers()
         plate = lattice_block([-reach, -reach, -layers * dx], [reach, reach, 0.0], dx)
         pad = (layers + 3) * dx
         self.front = []

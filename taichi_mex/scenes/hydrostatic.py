@@ -24,8 +24,8 @@ class HydrostaticScene:
         lo = np.zeros(3)
         hi = np.array([self.width_m, self.width_m, self.height_m])
         fluid = lattice_block(lo, hi, dx)
-        walls = box_walls(lo, hi + np.array([0, 0, 2 * dx]), dx, run.plate_layers, open_top=True)
-        pad = (run.plate_layers + 3) * dx
+        walls = box_walls(lo, hi + np.array([0, 0, 2 * dx]), dx, run.wall_layers(), open_top=True)
+        pad = (run.wall_layers() + 3) * dx
         from taichi_mex.scenes.base import ParticleBlock
 
         return ScenePlan(

@@ -144,11 +144,11 @@ class PrintScene:
         z_nozzle = traj.sample(times, clip=True).position_mm[:, 2] * 1e-3 + zoff
         column = (int(np.ceil(H / dx)) + 2) * dx
         z_top = float(z_nozzle.max()) + column + 2 * H
-        z_bottom = -(run.plate_layers + 1) * dx - H
+        z_bottom = -(run.wall_layers() + 1) * dx - H
         lo = np.array([lo_xy[0] - H, lo_xy[1] - H, z_bottom])
         hi = np.array([hi_xy[0] + H, hi_xy[1] + H, z_top])
 
-        plate = plate_lattice(lo_xy[0], hi_xy[0], lo_xy[1], hi_xy[1], dx, run.plate_layers)
+        plate = plate_lattice(lo_xy[0], hi_xy[0], lo_xy[1], hi_xy[1], dx, run.wall_layers())
         blocks = [ParticleBlock(plate, PLATE, temperature_c=None)]
         substrate = self._substrate(dx, lo_xy, hi_xy, zoff)
         if len(substrate):

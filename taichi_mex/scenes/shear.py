@@ -39,7 +39,7 @@ class ShearStartScene:
         lo = np.zeros(3)
         hi = np.array([self.length_m, self.length_m, self.height_m])
         fluid = lattice_block(lo, hi, dx)
-        layers = max(run.plate_layers, int(math.ceil(run.resolved_kernel()[1])))
+        layers = run.wall_layers()
         pad = 4 * dx
         plate = lattice_block([-pad, -pad, -layers * dx], [self.length_m + pad, self.length_m + pad, 0.0], dx)
         margin = (layers + 3) * dx
