@@ -146,3 +146,12 @@ def test_readme_is_a_guide_with_the_two_commands():
     assert len(text) < 15_000
     assert "pip install . && python -m taichi_mex --out run" in text
     assert "pip install '.[test]' && python -m pytest" in text
+
+
+def test_old_module_paths_still_import_and_say_where_they_moved():
+    code = ("import sys, warnings; warnings.simplefilter('always'); "
+            "import taichi_mex.analysis as a, taichi_mex.config as c; "
+            "print(hasattr(a, 'analyse_run'), hasattr(c, 'RunOptions'), 'taichi' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "True True False", out.stderr
+    assert "taichi_mex.analysis moved to taichi_mex.post.analysis" in out.stderr

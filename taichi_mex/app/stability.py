@@ -4,7 +4,7 @@ Each case changes one or two settings from the baseline (DFSPH, unscaled 1000 Pa
 60 mm/s, 0.2 mm layer under a 0.4 mm nozzle, 8 particles per nozzle diameter, f32, the
 stable time step) towards an extreme, prints a short bead, and must either finish with
 finite values, bounded compression and the commanded mass deposited, or be refused before
-it starts with a message that says what to change. ``python -m taichi_mex.app.stability`` runs
+it starts with a message that says what to change. ``python -m taichi_mex stability`` runs
 the whole matrix and prints the table that README.md shows; the tests run the fast cases.
 """
 
@@ -109,10 +109,11 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    import argparse
+    from taichi_mex.app.parsing import Parser
 
-    p = argparse.ArgumentParser(prog="python -m taichi_mex.app.stability")
-    p.add_argument("--out", type=Path, default=Path("stability_out"))
+    p = Parser(prog="python -m taichi_mex stability",
+               description="The stability matrix: single-bead cases at the extremes")
+    p.add_argument("--out", type=Path, default=Path("stability_out"), help="output folder")
     p.add_argument("--fast", action="store_true", help="only the cases the test suite runs")
     p.add_argument("--arch", choices=["cpu", "gpu"], default="cpu", help="cpu (default) or gpu")
     args = p.parse_args(argv)
