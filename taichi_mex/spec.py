@@ -83,7 +83,11 @@ def dotted_name(name: str, scene: str) -> str | None:
             table.setdefault("scene." + alias, path)
     if name not in table and name.startswith("scene."):
         # studies written before the run description reached run options as scene.OPTION
-        return table.get(name.removeprefix("scene."))
+        rest = name.removeprefix("scene.")
+        if rest in table:
+            return table[rest]
+        ends = [path for path in table if path.endswith("." + rest) and "." in path]
+        return ends[0] if len(set(ends)) == 1 else None
     return table.get(name)
 
 

@@ -129,6 +129,9 @@ def test_resolve_builds_options_and_refuses_bad_values(tmp_path):
     assert options.nozzle_height == "one_diameter"
     assert options.nozzle_tip_outer_diameter_mm is None
     assert options.layers == 1
+    # a study written before the run description: scene.OPTION for a run option still works
+    legacy = resolve({"scene": "thermal-beam", "scene.surface_method": "eigenvalue", "scene.until": 5})
+    assert legacy.spec.run.thermal.surface_method == "eigenvalue" and legacy.spec.options.until_s == 5
     gen = resolve({"layer_height_mm": 0.3, "speed_mm_s": 40})
     assert gen.generate["pattern"] == "bead"
     for params, message in (({"spacing_mm": 500.0}, "outside"),
