@@ -38,6 +38,7 @@ from pathlib import Path
 
 from taichi_mex import bundled
 from taichi_mex.errors import SimulationDiverged, UserInputError
+from taichi_mex.post.output import read_json
 from taichi_mex.spec import RunSpec, dotted_name, scene_entry, spec_fields
 
 # --------------------------------------------------------------------------- parameters
@@ -415,11 +416,7 @@ def _json_default(obj):
 
 
 def read_record(run_dir) -> dict | None:
-    path = Path(run_dir) / JOB_FILE
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
+    return read_json(Path(run_dir) / JOB_FILE)
 
 
 def is_finished(run_dir) -> bool:
@@ -427,9 +424,8 @@ def is_finished(run_dir) -> bool:
     record = read_record(run_dir)
     if not record or record.get("status") != "done":
         return False
-    try:
-        summary = json.loads((Path(run_dir) / "summary.json").read_text())
-    except (OSError, ValueError):
+    summary = read_json(Path(run_dir) / "summary.json")
+    if summary is None:
         return False
     return "error" not in summary and not summary.get("interrupted")
 
@@ -488,7 +484,7 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
         record.update(status="failed", failure="refused", error=str(exc))
     except SimulationDiverged as exc:
         record.update(status="failed", failure="diverged", error=str(exc))
-        summary = _read_json(out_dir / "summary.json")
+        summary = read_json(out_dir / "summary.json")
     except KeyboardInterrupt:
         record.update(status="interrupted", failure="interrupted", error="interrupted")
     except Exception as exc:  # noqa: BLE001 - a bug must cost this run only; keep its traceback
@@ -506,18 +502,11 @@ def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
     return record
 
 
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-
-
 def _analyse(out_dir: Path, record: dict, scene=None):
     """The run's mesostructure: the ``mesostructure.json`` the scene wrote itself (print
     scenes analyse their last frame), else :func:`taichi_mex.post.analysis.analyse_run` when that
     module is there. A failing analysis is noted in the record; the run stays done."""
-    written = _read_json(out_dir / "mesostructure.json")
+    written = read_json(out_dir / "mesostructure.json")
     if written is not None:
         return written
     if hasattr(scene, "write_outputs"):

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from taichi_mex.app.parsing import Parser
 from taichi_mex.errors import UserInputError
+from taichi_mex.post.output import read_json
 
 #: each ladder: (label, parameters for jobs.run_job_isolated); the first entry of a study is
 #: its reference when the scene has no analytic answer
@@ -110,7 +111,7 @@ def run_study(scene: str, out_dir: Path, quick: bool = False, timeout_s: float =
         print(f"[{k + 1}/{len(ladder)}] {label} ...", flush=True)
         t0 = time.perf_counter()
         record = run_job_isolated(merged, run_dir, timeout_s=timeout_s)
-        summary = _read(run_dir / "summary.json") or {}
+        summary = read_json(run_dir / "summary.json") or {}
         row = _row(scene, label, merged, record, summary, time.perf_counter() - t0)
         rows.append(row)
         print(f"    {row['status']}: {row['wall_time_s']:.1f} s, {row.get('particles') or 0:,} particles"
@@ -188,13 +189,6 @@ def write_trade(rows: list[dict], out_dir: Path) -> None:
     fig.tight_layout()
     fig.savefig(out_dir / "trade.png", dpi=120)
     plt.close(fig)
-
-
-def _read(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def main(argv: list[str]) -> int:

@@ -122,6 +122,15 @@ def read_frames(path) -> list[dict]:
     return out
 
 
+def read_json(path):
+    """A run file's JSON (summary.json, config.json, ...), or None when it is missing or
+    unreadable (a run stopped before writing it)."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+
+
 def read_config(path) -> dict:
     with h5py.File(path, "r") as h5:
         return json.loads(h5.attrs["config"])

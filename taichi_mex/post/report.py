@@ -12,6 +12,8 @@ import json
 import math
 from pathlib import Path
 
+from taichi_mex.post.output import read_json
+
 _CSS = """
 body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:2em auto;max-width:1100px;
 color:#222;padding:0 1em}h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.2em;margin-top:1.6em;
@@ -22,13 +24,6 @@ th{background:#f5f5f5}td.num{text-align:right;font-variant-numeric:tabular-nums}
 border:1px solid #eee}figcaption{font-size:.85em;color:#555}pre{background:#f7f7f7;padding:.8em;
 overflow:auto;font-size:.8em;max-height:28em}details summary{cursor:pointer;color:#246}
 """
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def _num(value, digits: int = 4) -> str:
@@ -169,10 +164,10 @@ def _plan(plan: dict | None) -> str:
 def write_report(run_dir) -> Path:
     """Write ``run_dir/report.html`` from the run's files; returns its path."""
     run_dir = Path(run_dir)
-    summary = _read_json(run_dir / "summary.json") or {}
-    config = _read_json(run_dir / "config.json")
-    plan = _read_json(run_dir / "plan.json")
-    meso = _read_json(run_dir / "mesostructure.json")
+    summary = read_json(run_dir / "summary.json") or {}
+    config = read_json(run_dir / "config.json")
+    plan = read_json(run_dir / "plan.json")
+    meso = read_json(run_dir / "mesostructure.json")
     scene = summary.get("scene", (config or {}).get("scene", "?"))
     material = ((config or {}).get("material") or {}).get("name", "")
     state = ("interrupted" if summary.get("interrupted") else
