@@ -19,7 +19,7 @@ import numpy as np
 from taichi_mex import backend
 from taichi_mex.options import Material, RunOptions, to_dict
 from taichi_mex.errors import SimulationDiverged, UserInputError
-from taichi_mex.core.state import FLUID, INLET, NOZZLE, PHASE_NAMES, PLATE, SOLID
+from taichi_mex.core.state import FLUID, PHASE_NAMES, PLATE, SOLID
 
 log = logging.getLogger("taichi_mex")
 
@@ -103,51 +103,6 @@ class Simulation:
         self.time_s = self.plan.t_start_s
         self.steps = 0
         self.history: list[dict] = []
-
-    def _idle_end(self, t: float, t_end: float) -> float | None:
-        """End of the idle span that t lies in, if the run may skip it: the nozzle is outside
-        the domain until then, the last step was creeping (inertia gone within a step), and
-        the gravity slump rho g L T / eta over the span stays below creeping_limit (the bead
-        would creep by less than that strain; Simulation._creeping_numbers)."""
-        run = self.run_opts
-        if not run.skip_idle or not self.plan.idle_windows or not getattr(self.solver, "creeping_now", False):
-            return None
-        for lo, hi in self.plan.idle_windows:
-            if lo <= t < hi - 1e-12:
-                end = min(hi, t_end)
-                scales = self.plan.creeping
-                eta = self.creeping.get("viscosity_as_run_pa_s")
-                if scales is None or not eta:
-                    return None
-                slump = (self.material.density_kg_m3 * run.gravity_m_s2 * scales.length_m
-                         * (end - t) / eta)
-                return end if slump < run.creeping_limit else None
-        return None
-
-    def _idle_step(self, t: float, end: float) -> float:
-        """Advance an idle span: heat alone at its own stable step, or straight to its end
-        without heat; the nozzle then moves to where it re-enters."""
-        if not self.skipped or self.skipped[-1]["to_s"] < t - 1e-12:
-            self.skipped.append({"from_s": t, "to_s": t, "heat_steps": 0})
-        span = self.skipped[-1]
-        dt = end - t
-        if self.thermal is not None:
-            dt = min(min(self.extra_dt_limits().values()), dt)
-            with self.timer.phase("heat (idle)"):
-                self.heat_step(dt)
-            span["heat_steps"] += 1
-        t = end if end - (t + dt) < 1e-12 else t + dt
-        span["to_s"] = t
-        if t >= end:
-            self.move_boundaries(t)
-            self.grid.stale = True
-        return t
-
-    def melt_particles(self) -> int:
-        """Melt the solver moves: the scene's initial fluid plus what the inlet released, less
-        what left the domain (the cost of a print should follow this, not the walls)."""
-        released = self.inlet.released_count if self.inlet is not None else 0
-        return self._initial_fluid + released - self.lost_particles
 
     # ----------------------------------------------------------------- planning
     def _check_probes(self) -> None:
@@ -443,6 +398,51 @@ class Simulation:
                 "the CFL factor or raise the iteration limits.")
 
     # ----------------------------------------------------------------- running
+    def _idle_end(self, t: float, t_end: float) -> float | None:
+        """End of the idle span that t lies in, if the run may skip it: the nozzle is outside
+        the domain until then, the last step was creeping (inertia gone within a step), and
+        the gravity slump rho g L T / eta over the span stays below creeping_limit (the bead
+        would creep by less than that strain; Simulation._creeping_numbers)."""
+        run = self.run_opts
+        if not run.skip_idle or not self.plan.idle_windows or not getattr(self.solver, "creeping_now", False):
+            return None
+        for lo, hi in self.plan.idle_windows:
+            if lo <= t < hi - 1e-12:
+                end = min(hi, t_end)
+                scales = self.plan.creeping
+                eta = self.creeping.get("viscosity_as_run_pa_s")
+                if scales is None or not eta:
+                    return None
+                slump = (self.material.density_kg_m3 * run.gravity_m_s2 * scales.length_m
+                         * (end - t) / eta)
+                return end if slump < run.creeping_limit else None
+        return None
+
+    def _idle_step(self, t: float, end: float) -> float:
+        """Advance an idle span: heat alone at its own stable step, or straight to its end
+        without heat; the nozzle then moves to where it re-enters."""
+        if not self.skipped or self.skipped[-1]["to_s"] < t - 1e-12:
+            self.skipped.append({"from_s": t, "to_s": t, "heat_steps": 0})
+        span = self.skipped[-1]
+        dt = end - t
+        if self.thermal is not None:
+            dt = min(min(self.extra_dt_limits().values()), dt)
+            with self.timer.phase("heat (idle)"):
+                self.heat_step(dt)
+            span["heat_steps"] += 1
+        t = end if end - (t + dt) < 1e-12 else t + dt
+        span["to_s"] = t
+        if t >= end:
+            self.move_boundaries(t)
+            self.grid.stale = True
+        return t
+
+    def melt_particles(self) -> int:
+        """Melt the solver moves: the scene's initial fluid plus what the inlet released, less
+        what left the domain (the cost of a print should follow this, not the walls)."""
+        released = self.inlet.released_count if self.inlet is not None else 0
+        return self._initial_fluid + released - self.lost_particles
+
     def run(self, until_s: float | None = None, reporter=None) -> dict:
         """Advance to ``until_s`` (default: the scene's end) and return the summary dict.
 
@@ -462,11 +462,11 @@ class Simulation:
             self.skipped = []
         writer = self._open_writer()
         t = self.time_s
-        next_out = t
-        if self.resumed:  # its frame is written: continue on the same frame times
-            next_out = self.plan.t_start_s + every * (np.floor((t - self.plan.t_start_s) / every + 1e-9) + 1)
+        t0 = self.plan.t_start_s
+        # a resumed run's frame at t is written: it continues on the same frame times
+        next_out = _after(t0, every, t) if self.resumed else t
         snap_every = run.snapshot_every_s
-        next_snap = t + snap_every if snap_every else np.inf
+        next_snap = _after(t0, snap_every, t) if snap_every else np.inf
         probe_every = run.probe_every_s or span / 200.0
         next_probe = t if run.probes_mm else np.inf
         interrupted = False
@@ -479,15 +479,17 @@ class Simulation:
         self.solver.start(t)
         try:
             while True:
+                # after a skipped idle span several output times may lie behind t: one
+                # frame (sample) for all of them, then the next time ahead
                 if writer is not None and t >= next_out - 1e-12:
                     self._write_frame(writer, t)
-                    next_out += every
+                    next_out = _after(t0, every, t)
                 if writer is not None and t >= next_snap - 1e-12:
                     self.snapshots_or_warn(f"t{t:.5f}s")
-                    next_snap += snap_every
+                    next_snap = _after(t0, snap_every, t)
                 if t >= next_probe - 1e-12:
                     self._sample_probes(t)
-                    next_probe += probe_every
+                    next_probe = _after(t0, probe_every, t)
                 if t >= t_end - 1e-12:
                     break
                 idle_end = self._idle_end(t, t_end)
@@ -785,6 +787,12 @@ class Simulation:
         if hasattr(self.scene, "analyse"):
             out.update(self.scene.analyse(self))
         return out
+
+
+def _after(t0: float, every: float, t: float) -> float:
+    """The first of the times t0 + k every that lies after t (t itself within rounding counts
+    as reached)."""
+    return t0 + every * (np.floor((t - t0) / every + 1e-9) + 1)
 
 
 def _fit_step(dt: float, remaining: float) -> float:
