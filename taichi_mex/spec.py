@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import types
 import typing
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
@@ -104,7 +105,7 @@ def _coerce(value, hint, where: str):
     wrong kinds are refused with the option's name."""
     origin = typing.get_origin(hint)
     args = typing.get_args(hint)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+    if origin in (typing.Union, types.UnionType):
         for arg in args:
             try:
                 return _coerce(value, arg, where)
