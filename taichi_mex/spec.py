@@ -226,12 +226,7 @@ class RunSpec:
         options, unless ``changes`` sets them itself."""
         entry = scene_entry(scene)
         changes = dict(changes or {})
-        dotted = {}
-        for key, value in changes.items():
-            path = dotted_name(key, scene)
-            if path is None:
-                raise UserInputError(_unknown(key, scene))
-            dotted[path] = value
+        dotted = _dotted(changes, scene)
         for path, value in list(dotted.items()):
             f = field_at(scene, path)
             for implied, implied_value in f.metadata.get("implies", {}).items():
@@ -275,10 +270,7 @@ class RunSpec:
         """A copy with dotted paths (or flat names) changed, then validated; ``implies`` is
         not applied (the description already holds what was implied)."""
         out = replace(self)
-        for key, value in changes.items():
-            path = dotted_name(key, self.scene)
-            if path is None:
-                raise UserInputError(_unknown(key, self.scene))
+        for path, value in _dotted(changes, self.scene).items():
             root, _, rest = path.partition(".")
             target = {"scene": "options"}.get(root, root)
             setattr(out, target, _set(getattr(out, target), rest.split("."), value, root + "."))
@@ -303,12 +295,15 @@ class RunSpec:
 
     # ------------------------------------------------------------------ dict and file
     def to_dict(self) -> dict:
+        """The description as config.json holds it (tuples as lists), so that a description
+        and the file it was written to compare equal."""
         from taichi_mex import __version__
 
-        return {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "taichi_mex": __version__,
-                "scene": self.scene, "preset": self.preset, "material_source": self.material_source,
-                "scene_options": asdict(self.options),
-                "run": asdict(self.run), "material": asdict(self.material)}
+        return json.loads(json.dumps({
+            "format": FORMAT_NAME, "format_version": FORMAT_VERSION, "taichi_mex": __version__,
+            "scene": self.scene, "preset": self.preset, "material_source": self.material_source,
+            "scene_options": asdict(self.options),
+            "run": asdict(self.run), "material": asdict(self.material)}))
 
     @classmethod
     def from_dict(cls, data: dict) -> RunSpec:
@@ -353,6 +348,17 @@ class RunSpec:
         except (OSError, ValueError) as exc:
             raise UserInputError(f"{path} is not a readable run description: {exc}.") from None
         return cls.from_dict(data)
+
+
+def _dotted(changes: dict, scene: str) -> dict:
+    """Changes keyed by dotted paths; an unknown name is refused with a suggestion."""
+    out = {}
+    for key, value in changes.items():
+        path = dotted_name(key, scene)
+        if path is None:
+            raise UserInputError(_unknown(key, scene))
+        out[path] = value
+    return out
 
 
 def _unknown(name: str, scene: str) -> str:

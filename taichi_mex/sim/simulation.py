@@ -597,7 +597,7 @@ class Simulation:
         description = self.description()
         if description is not None:
             description.write(self.out_dir)
-            self._description = json.loads(json.dumps(description.to_dict()))
+            self._description = description.to_dict()
         else:
             log.warning("scene '%s' is not a registered scene: no config.json (the run cannot be "
                         "re-created from a file)", getattr(self.scene, "name", "?"))
@@ -629,7 +629,7 @@ class Simulation:
             raise UserInputError(f"{out_dir} holds no config.json: not a taichi_mex run folder.")
         data = checkpoint.load(out_dir)
         spec = RunSpec.load(out_dir / "config.json")
-        if data["description"] != json.loads(json.dumps(spec.to_dict())):
+        if data["description"] != spec.to_dict():
             raise UserInputError(f"{out_dir}/config.json differs from the run its checkpoint "
                                  "belongs to: resume refuses a changed configuration (start a new "
                                  "run with --config instead).")
