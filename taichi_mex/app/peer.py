@@ -1,8 +1,9 @@
 """Side by side with PySPH (the seed paper's framework) on PySPH's own 3D dam break with EDAC.
 
-    python -m taichi_mex bench dam-break [--steps N] [--no-pysph] [--openmp/--no-openmp]
+    python -m taichi_mex bench dam-break [--steps N] [--no-pysph] [--pysph-runs both|openmp|single]
 
-Both codes run the same case one after the other on this machine: the geometry of
+Both codes run the same case one after the other on this machine, in one command: ours,
+then PySPH with OpenMP on the same threads, then PySPH on one core. The geometry of
 ``pysph.examples._db_geometry.DamBreak3DGeometry`` (dx = 0.02 m, nboundary_layers = 1:
 80,703 fluid + 60,836 tank + 1,512 obstacle = 143,051 particles), EDAC with pb = 0, nu = 0,
 h = 1.3 dx, Wendland C2 (PySPH's WendlandQuintic, support 2h), c0 = 10 sqrt(2 g 0.55),
@@ -21,7 +22,14 @@ Time step: PySPH steps with the fixed dt = 0.125 h / c0 that its EDAC examples u
 (100 steps from rest: |v| < 0.1 m/s against c0 = 32.8 m/s).
 
 Particle-steps per second count every particle (fluid, tank, obstacle) in both codes, as
-the PySPH figures quoted in issue 6 do.
+the PySPH figures quoted in issue 6 do. Each run also records the CPU time that other
+processes used while it was timed (from /proc/stat, Linux): on a shared machine a busy
+neighbour slows PySPH's OpenMP loops (each waits for its slower thread) more than it slows
+ours, and the figures are comparable only when that is near zero.
+
+After the timed steps ours runs a further stretch with the phase timer on (it waits for
+the device at each phase boundary, so it is kept out of the rate) and prints where a step's
+time goes.
 
 PySPH is optional (``pip install '.[peer]'``, a ~4 minute Cython build). The worker runs
 under this interpreter when it can import pysph, else under ``--pysph-python PATH`` (or the
@@ -56,6 +64,17 @@ def pysph_dt(dx_m: float = DX_M) -> float:
     return DT_FACTOR * HDX * dx_m / C0
 
 
+def busy_cpu_s() -> float:
+    """CPU seconds all processes on this machine have used since boot (nan off Linux)."""
+    try:
+        with open("/proc/stat") as fh:
+            fields = [int(v) for v in fh.readline().split()[1:]]
+    except (OSError, ValueError):
+        return math.nan
+    idle = fields[3] + fields[4]  # idle, iowait
+    return (sum(fields[:8]) - idle) / os.sysconf("SC_CLK_TCK")
+
+
 # ---------------------------------------------------------------------------- ours
 def bench_ours(steps: int = 100, dx_m: float = DX_M, threads: int | None = None,
                precision: str = "f32", arch: str = "cpu", warm_steps: int = 3) -> dict:
@@ -74,31 +93,41 @@ def bench_ours(steps: int = 100, dx_m: float = DX_M, threads: int | None = None,
     sim.run(until_s=warm_steps * pysph_dt(dx_m))
     warm_s = time.perf_counter() - t_build
     solver = sim.solver
-    t = sim.time_s
     dts = []
-    particle_steps = 0
+
+    def advance(k: int) -> int:
+        particle_steps = 0
+        for _ in range(k):  # by hand: no output, summary or monitor work in the timing
+            dt, _limits = solver.time_step()
+            dt = solver.step(sim.time_s, dt)
+            sim.time_s += dt
+            sim.steps += 1
+            particle_steps += sim.state.n
+            dts.append(dt)
+        ti.sync()
+        return particle_steps
+
     rebuilds0 = sim.grid.rebuilds
+    busy0 = busy_cpu_s()
     wall0 = time.perf_counter()
     cpu0 = time.process_time()
-    for _ in range(steps):  # by hand: no output, summary or monitor work in the timing
-        dt, _limits = solver.time_step()
-        dt = solver.step(t, dt)
-        t += dt
-        sim.time_s = t
-        sim.steps += 1
-        particle_steps += sim.state.n
-        dts.append(dt)
-    ti.sync()
+    particle_steps = advance(steps)
     wall = time.perf_counter() - wall0
     cpu = time.process_time() - cpu0
+    others = busy_cpu_s() - busy0 - cpu
+    rebuilds = sim.grid.rebuilds - rebuilds0
     speed = solver.max_speed()
+    sim.timer.enabled = True
+    advance(max(steps // 2, 1))
+    total = sum(sim.timer.seconds.values()) or 1.0
+    split = {k: v / total for k, v in sorted(sim.timer.seconds.items(), key=lambda kv: -kv[1])}
     out = {
         "code": "taichi_mex", "particles": int(sim.state.n), **sim.scene.counts,
         "steps": steps, "wall_s": wall, "cpu_s": cpu, "particle_steps_per_s": particle_steps / wall,
-        "dt_first_s": dts[0], "dt_last_s": dts[-1], "neighbour_rebuilds": sim.grid.rebuilds - rebuilds0,
+        "dt_first_s": dts[0], "dt_last_s": dts[steps - 1], "neighbour_rebuilds": rebuilds,
         "max_speed_m_s": speed, "finite": bool(math.isfinite(speed)),
         "warmup_s": warm_s, "arch": sim.arch_used, "precision": precision,
-        "threads": threads or os.cpu_count(),
+        "threads": threads or os.cpu_count(), "others_cpu_s": others, "phase_share": split,
     }
     ti.reset()  # free the fields (and the CPU thread pool) before PySPH runs
     return out
@@ -130,18 +159,15 @@ def bench_pysph(steps: int = 100, dx_m: float = DX_M, openmp: bool = True,
     """PySPH's dam break with EDACScheme for ``steps`` steps, in a subprocess."""
     python = python or sys.executable
     cfg = {"steps": steps, "dx": dx_m, "openmp": openmp}
-    env = dict(os.environ)
-    if threads:
-        env["OMP_NUM_THREADS"] = str(threads)
+    n_threads = (threads or os.cpu_count() or 1) if openmp else 1
+    env = {**os.environ, "OMP_NUM_THREADS": str(n_threads)}
     with tempfile.TemporaryDirectory(prefix="pysph_dam_break_") as work:
         cfg["output_dir"] = work
         proc = subprocess.run([python, os.path.abspath(__file__), "--pysph-worker", json.dumps(cfg)],
                               capture_output=True, text=True, env=env, cwd=work, timeout=timeout_s)
     for line in reversed(proc.stdout.splitlines()):
         if line.startswith(_RESULT_TAG):
-            result = json.loads(line[len(_RESULT_TAG):])
-            result["threads"] = (threads or int(env.get("OMP_NUM_THREADS", 0)) or os.cpu_count()) if openmp else 1
-            return result
+            return {**json.loads(line[len(_RESULT_TAG):]), "threads": n_threads}
     tail = "\n".join((proc.stdout + proc.stderr).splitlines()[-30:])
     raise RuntimeError(f"the PySPH run failed (exit {proc.returncode}):\n{tail}")
 
@@ -182,11 +208,13 @@ def _pysph_worker(cfg: dict) -> None:
     t0 = time.perf_counter()
     app.setup(argv)  # code generation and Cython compilation happen here
     setup_s = time.perf_counter() - t0
+    busy0 = busy_cpu_s()
     t0 = time.perf_counter()
     cpu0 = time.process_time()
     app.solver.solve(False)  # what Application.solve times as "Run took"
     run_s = time.perf_counter() - t0
     cpu_s = time.process_time() - cpu0
+    others = busy_cpu_s() - busy0 - cpu_s
     counts = {pa.name: int(pa.get_number_of_particles()) for pa in app.particles}
     total = sum(counts.values())
     done = int(app.solver.count)
@@ -199,18 +227,22 @@ def _pysph_worker(cfg: dict) -> None:
     result = {"code": f"PySPH {pysph.__version__}", "particles": total, **counts, "steps": done,
               "wall_s": run_s, "cpu_s": cpu_s, "particle_steps_per_s": total * done / run_s, "dt_s": dt,
               "setup_s": setup_s, "openmp": bool(cfg["openmp"]), "max_speed_m_s": speed,
+              "others_cpu_s": others,
               "finite": bool(np.isfinite(speed))}
     print(_RESULT_TAG + json.dumps(result), flush=True)
 
 
 # ---------------------------------------------------------------------------- both
-def bench_dam_break(steps: int = 100, pysph: bool = True, openmp: bool = True,
+def bench_dam_break(steps: int = 100, pysph: bool = True, pysph_runs: str = "both",
                     dx_m: float = DX_M, threads: int | None = None, precision: str = "f32",
                     pysph_python: str | None = None, arch: str = "cpu", echo=print) -> dict:
-    """Ours, then PySPH (when it can be imported); prints both figures and their ratio."""
+    """Ours, then PySPH (when it can be imported) with OpenMP and on one core (pysph_runs:
+    'both', 'openmp' or 'single'); prints the figures and ours / each of PySPH's."""
     echo(f"dam break 3D (PySPH's DamBreak3DGeometry, dx = {dx_m:g} m, EDAC), {steps} steps")
     ours = bench_ours(steps, dx_m, threads, precision, arch)
     echo(_line(ours))
+    echo("  where our step's time goes: "
+         + ", ".join(f"{k} {100 * v:.0f} %" for k, v in ours["phase_share"].items()))
     result = {"ours": ours, "pysph": None, "ratio": None}
     if not pysph:
         return result
@@ -221,16 +253,22 @@ def bench_dam_break(steps: int = 100, pysph: bool = True, openmp: bool = True,
              f"{PYTHON_ENV} at an interpreter that has it.")
         result["pysph_missing"] = version
         return result
-    echo(f"running PySPH {version} ({'OpenMP' if openmp else 'one core'}) under {python} ...")
-    peer = bench_pysph(steps, dx_m, openmp, threads, python)
-    echo(_line(peer))
-    if peer["particles"] != ours["particles"]:
-        echo(f"note: particle counts differ ({ours['particles']:,} ours, {peer['particles']:,} "
-             "PySPH): PySPH's float comparisons put some lattice points on a face differently "
-             "at this dx")
-    result["pysph"] = peer
-    result["ratio"] = ours["particle_steps_per_s"] / peer["particle_steps_per_s"]
-    echo(f"ratio: ours / PySPH = {result['ratio']:.1f}x")
+    modes = {"both": (True, False), "openmp": (True,), "single": (False,)}[pysph_runs]
+    result["pysph"], result["ratio"] = [], {}
+    for openmp in modes:
+        echo(f"running PySPH {version} ({'OpenMP' if openmp else 'one core'}) under {python} ...")
+        peer = bench_pysph(steps, dx_m, openmp, threads, python)
+        peer["ratio"] = ours["particle_steps_per_s"] / peer["particle_steps_per_s"]
+        echo(_line(peer))
+        if peer["particles"] != ours["particles"]:
+            echo(f"note: particle counts differ ({ours['particles']:,} ours, {peer['particles']:,} "
+                 "PySPH): PySPH's float comparisons put some lattice points on a face differently "
+                 "at this dx")
+        result["pysph"].append(peer)
+        result["ratio"]["openmp" if openmp else "single"] = peer["ratio"]
+    echo("ours / PySPH: " + "; ".join(
+        f"{'OpenMP, ' + str(r['threads']) + ' threads' if r['openmp'] else 'one core'} {r['ratio']:.1f}x"
+        for r in result["pysph"]))
     return result
 
 
@@ -242,7 +280,7 @@ def _line(r: dict) -> str:
         extra = f"{'OpenMP, ' + str(r['threads']) + ' threads' if r['openmp'] else 'one core'}, f64"
     return (f"  {r['code']:12s} {r['particles']:>9,d} particles x {r['steps']} steps in "
             f"{r['wall_s']:7.2f} s = {r['particle_steps_per_s'] / 1e6:6.3f} M particle-steps/s "
-            f"({extra}; {r['cpu_s']:.1f} CPU-s)")
+            f"({extra}; {r['cpu_s']:.1f} CPU-s; other processes {r['others_cpu_s']:.1f} CPU-s)")
 
 
 def parser(prog: str = "python -m taichi_mex bench dam-break",
@@ -252,9 +290,8 @@ def parser(prog: str = "python -m taichi_mex bench dam-break",
     p.add_argument("--steps", type=int, default=100, help="timed steps (default 100)")
     p.add_argument("--dx", type=float, default=DX_M, help="particle spacing in m (default 0.02)")
     p.add_argument("--no-pysph", dest="pysph", action="store_false", help="run ours only")
-    p.add_argument("--openmp", dest="openmp", action="store_true", default=True,
-                   help="PySPH with OpenMP on all cores (default)")
-    p.add_argument("--no-openmp", dest="openmp", action="store_false", help="PySPH on one core")
+    p.add_argument("--pysph-runs", choices=["both", "openmp", "single"], default="both",
+                   help="PySPH with OpenMP on --threads, on one core, or both (default)")
     p.add_argument("--threads", type=int, default=None,
                    help="threads for both codes (default: all cores)")
     p.add_argument("--precision", choices=["f32", "f64"], default="f32",
@@ -273,7 +310,7 @@ def main(argv: list[str] | None = None, parser_class=argparse.ArgumentParser) ->
     args = parser(parser_class=parser_class).parse_args(argv)
     if args.steps < 1 or not args.dx > 0:
         raise UserInputError("--steps must be at least 1 and --dx positive.")
-    result = bench_dam_break(args.steps, args.pysph, args.openmp, args.dx, args.threads,
+    result = bench_dam_break(args.steps, args.pysph, args.pysph_runs, args.dx, args.threads,
                              args.precision, args.pysph_python, args.arch)
     if args.json:
         with open(args.json, "w") as fh:

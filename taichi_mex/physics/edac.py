@@ -64,33 +64,31 @@ class EDAC:
     def predict(self, n: ti.i32, half_dt: float, t_eval: float) -> float:
         """Keep x0, v0, p0; move fluid to t + dt/2 with the last rates (EDACStep.stage1).
         Returns the largest fluid displacement since the last neighbour-list rebuild."""
+        # one loop: copying, moving and measuring in three would read the fields three times
         for i in range(n):
             self.x0[i] = self.state.x[i]
             self.v0[i] = self.state.v[i]
             self.p0[i] = self.state.p[i]
-        self._advance(n, half_dt, t_eval)
-        for i in range(n):
+            self._advance(i, half_dt, t_eval)
             self.scratch[i] = self.grid.displacement(i) if self.state.phase[i] == FLUID else 0.0
         self.reduce.max(self.scratch, n)
         return ti.cast(self.reduce.total[None], float)
 
     @ti.func
-    def _advance(self, n, dt, t_eval):
+    def _advance(self, i, dt, t_eval):
         # Melt released by the inlet after the last evaluation has no rates yet: it keeps
-        # its inflow velocity and feels gravity only until the next evaluation. (dt = 0: no-op,
-        # tested inside the loop so that the loop stays at the kernel's top level, parallel.)
-        for i in range(n):
-            if dt > 0.0 and self.state.phase[i] == FLUID:
-                xd = self.xdot[i]
-                a = self.acc[i]
-                dp = self.dpdt[i]
-                if self.state.born[i] > t_eval:
-                    xd = self.v0[i]
-                    a = ti.Vector(self.g)
-                    dp = 0.0
-                self.state.x[i] = self.x0[i] + dt * xd
-                self.state.v[i] = self.v0[i] + dt * a
-                self.state.p[i] = self.p0[i] + dt * dp
+        # its inflow velocity and feels gravity only until the next evaluation. (dt = 0: no-op.)
+        if dt > 0.0 and self.state.phase[i] == FLUID:
+            xd = self.xdot[i]
+            a = self.acc[i]
+            dp = self.dpdt[i]
+            if self.state.born[i] > t_eval:
+                xd = self.v0[i]
+                a = ti.Vector(self.g)
+                dp = 0.0
+            self.state.x[i] = self.x0[i] + dt * xd
+            self.state.v[i] = self.v0[i] + dt * a
+            self.state.p[i] = self.p0[i] + dt * dp
 
     def evaluate(self, correct_dt: float = 0.0, t_eval: float = 0.0) -> int:
         """Rates at the current state; with correct_dt > 0 also the corrector step
@@ -104,8 +102,8 @@ class EDAC:
         self._density(n)
         self._walls(n)
         self._rates(n)
-        self._advance(n, dt, t_eval)
         for i in range(n):
+            self._advance(i, dt, t_eval)
             ph = self.state.phase[i]
             s = 0.0
             a = 0.0
