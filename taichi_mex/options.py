@@ -476,8 +476,26 @@ class DFSPHOptions:
         "is redone with half the time step (-)", check=Positive())
     step_retries: int = opt(4, help="at most this many halvings of one step",
                             check=Range(0, 30, integer=True))
-    stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers (no cited source; to be "
-                                        "replaced by a coupled Stokes solve)",
+    creeping_solve: str = opt(
+        "split", help="creeping steps: 'split' (implicit viscosity, then the pressure solves, "
+        "with the stabilisers) or 'coupled' (viscous stress and pressure in one saddle-point "
+        "solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps halved or the "
+        "run stopped)", check=OneOf("split", "coupled"), flag="--creeping-solve",
+        names=("creeping_solve",))
+    stokes_momentum_tolerance: float = opt(
+        1e-6, help="coupled solve: relative residual of the momentum rows it stops at (-)",
+        check=Range(0.0, 0.1, lo_open=True))
+    stokes_density_tolerance: float = opt(
+        1e-5, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-)",
+        check=Range(0.0, 0.1, lo_open=True))
+    stokes_restart: int = opt(40, help="coupled solve: GMRES restart length (Krylov vectors "
+                              "kept; memory 32 bytes per particle each)",
+                              check=Range(2, 500, integer=True))
+    stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
+                                     "after this many GMRES iterations",
+                                     check=Range(1, 10**7, integer=True))
+    stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers of the 'split' solve "
+                                        "(no cited source; 'coupled' needs none)",
                                         factory=DFSPHStabilisers)
 
 

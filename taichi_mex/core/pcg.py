@@ -84,6 +84,7 @@ class Scalars:
         self.error_max = ti.field(**f64)
         self.iterations = ti.field(dtype=ti.i32, shape=())
         self.done = ti.field(dtype=ti.i32, shape=())
+        self.converged = ti.field(dtype=ti.i32, shape=())  # done by the rule, not by the cap
 
 
 @ti.data_oriented
@@ -132,6 +133,7 @@ class PCG:
             self.s.ref[None] = 1.0
             self.s.iterations[None] = 0
             self.s.done[None] = 0
+            self.s.converged[None] = 0
 
     @ti.func
     def dot(self, a, b):
@@ -189,6 +191,7 @@ class PCG:
         ok = error <= tol and rz <= rel2 * self.s.rz0[None] and it >= min_iter
         if ti.static(self.track_max):
             ok = ok and error_max <= tol_max
+        self.s.converged[None] = 1 if ok else 0
         return ok or it >= max_iter
 
     @ti.func
@@ -279,6 +282,10 @@ class PCG:
         return self.report()
 
     # ---------------------------------------------------------------- driver
+    def converged(self) -> bool:
+        """Whether the last solve stopped by its rule (False: by the iteration cap)."""
+        return bool(self.s.converged[None])
+
     def iterate(self, n: int, stop: Stop, mode, start) -> tuple[int, float, float]:
         """Iterate from ``start`` (the report of the kernel that called ``begin``) until the
         stop; returns (iterations, error, error_max). A launch runs ``chunk`` iterations, so

@@ -11,8 +11,10 @@ from typing import Callable
 import numpy as np
 
 from taichi_mex.backend import ti
+from taichi_mex.errors import SimulationDiverged
 from taichi_mex.physics.dfsph import DFSPH
 from taichi_mex.physics.edac import EDAC
+from taichi_mex.physics.stokes import CoupledStokes
 from taichi_mex.physics.viscosity_weiler2018 import ImplicitViscosity
 from taichi_mex.core.state import FLUID, FluidIndex
 
@@ -145,12 +147,25 @@ class DFSPHSolver:
                                       run.spacing_m, run.dfsph.viscosity_tolerance,
                                       run.dfsph.viscosity_max_iterations, self.fluid,
                                       run.dfsph.no_slip, run.dfsph.cg_chunk)
+        self.stokes = None
+        if run.dfsph.creeping_solve == "coupled":
+            o = run.dfsph
+            self.stokes = CoupledStokes(state, grid, kernel, viscosity, rho0, self.dfsph.V0,
+                                        self.visc.d, run.spacing_m, self.fluid,
+                                        o.stokes_restart,
+                                        o.stokes_momentum_tolerance, o.stokes_density_tolerance,
+                                        o.stokes_max_iterations)
+        self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
         self.clamp_alarm = float(run.dfsph.stabilisers.clamp_alarm)
         self.vmax = 0.0
+        self.gravity_norm = float(run.gravity_m_s2)
         self.dx = run.spacing_m
         self.halvings = 0
+        # solves stopped by their iteration cap (each makes its step be redone)
+        self.unconverged = {"divergence": 0, "viscosity": 0, "pressure": 0,
+                            "compression correction": 0}
         self.corrections = 0
         self.ejected = 0
         self.clamped = 0
@@ -158,8 +173,10 @@ class DFSPHSolver:
         self.saved_v = ti.Vector.field(3, float, shape=cap)
         self.saved_k = ti.Vector.field(2, float, shape=cap)
         self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
-        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0}
-        self.worst = {"density_error": 0.0, "viscosity_residual": 0.0}
+        self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0,
+                       "stokes_iterations": 0}
+        self.worst = {"density_error": 0.0, "viscosity_residual": 0.0,
+                      "stokes_momentum_residual": 0.0, "stokes_density_error": 0.0}
         # the densest melt at the start of every step: the state a step leaves, at any time,
         # not only at the end (a slice leaving the bore was compressed for one step)
         self.peak_compression = {"max": 0.0, "sum": 0.0, "steps": 0}
@@ -169,9 +186,17 @@ class DFSPHSolver:
         pass
 
     def time_step(self) -> tuple[float, dict]:
+        """CFL on the fastest melt or wall; before the first step, when no melt moves yet,
+        Monaghan's (1992) force criterion dt <= 0.25 sqrt(h / g) on the force that starts it:
+        melt released from rest then starts with the same step whatever the run's length or
+        output interval. (Applied at every step to the step's own acceleration |dv| / dt it
+        would hold dt near 0.06 h / |dv|, below the CFL step wherever melt takes the nozzle's
+        speed within one step, as a creeping melt does by design.)"""
         o = self.opts
         speed = max(self.vmax, self.hooks.boundary_speed(), 1e-6)
         limits = {"cfl": o.cfl * 0.4 * self.dx / speed, "max": self.max_dt}
+        if self.hooks.steps() == 0 and self.gravity_norm > 0.0:
+            limits["force"] = 0.25 * (0.5 * self.dfsph.K.H / self.gravity_norm) ** 0.5
         limits.update(self.hooks.extra_dt_limits())
         return min(limits.values()), limits
 
@@ -216,21 +241,27 @@ class DFSPHSolver:
         nf = self.fluid.update()  # after solidification too
         d.rows.update()
         self._save(n)
+        if self.stokes is not None:
+            return self._coupled_step(t, dt, n)
         for attempt in range(self.retries + 1):
             if attempt:
                 self._restore(n)
                 dt *= 0.5
                 self.halvings += 1
+            converged = {}
             if self._divergence_solve_wanted(dt):
                 with h.phase("divergence solve"):
                     iv, _ = d.divergence_solve(dt)
+                converged["divergence"] = d.cg.converged()
                 self.totals["divergence_iterations"] += iv
             d.pressure_predictor(n, dt)
             self._gravity(n, dt)
             with h.phase("viscosity solve"):
                 ik, res = self.visc.solve(dt)
+            converged["viscosity"] = self.visc.cg.converged()
             with h.phase("density solve"):
                 ip, err = d.density_solve(dt)
+            converged["pressure"] = d.cg.converged()
             moved = None
             if self.opts.compression_check is not None:
                 with h.phase("compression check"):
@@ -239,13 +270,25 @@ class DFSPHSolver:
                         if moved <= self.opts.compression_check:
                             break
                         ic, err = d.correct_compression(dt)
+                        converged["compression correction"] = d.cg.converged()
                         ip += ic
                         self.corrections += 1
                         moved = d.moved_compression(d.rows.n, dt)
             self.totals["viscosity_iterations"] += ik
             self.totals["density_iterations"] += ip
             vmax = float(d.max_fluid_speed(n))
-            if vmax * dt <= self.max_travel * self.dx or attempt == self.retries:
+            failed = [name for name, ok in converged.items() if not ok]
+            for name in failed:
+                self.unconverged[name] += 1
+            if not failed and vmax * dt <= self.max_travel * self.dx:
+                break
+            if attempt == self.retries:
+                if failed:
+                    _stop(t, f"the {' and '.join(failed)} solve{'s' if len(failed) > 1 else ''} "
+                             f"did not converge at dt = {dt:.3g} s after {self.retries} halvings "
+                             "of the step. Raise run.dfsph.max_iterations or "
+                             "run.dfsph.viscosity_max_iterations, or try --creeping-solve "
+                             "coupled")
                 break
         self.worst["viscosity_residual"] = max(self.worst["viscosity_residual"], res)
         self.worst["density_error"] = max(self.worst["density_error"], err)
@@ -273,6 +316,73 @@ class DFSPHSolver:
             h.move_boundaries(t + dt)
         return dt
 
+    def _coupled_step(self, t: float, dt: float, n: int) -> float:
+        """Viscous stress and pressure solved together (physics/stokes.py); a step whose solve
+        does not converge is redone with half the step, and after step_retries halvings the
+        run stops: no unconverged step is kept."""
+        h = self.hooks
+        d = self.dfsph
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self._restore(n)
+                dt *= 0.5
+                self.halvings += 1
+            with h.phase("coupled solve"):
+                res = self.stokes.solve(dt, d.kappa, self.gravity)
+            self.totals["stokes_iterations"] += res.iterations
+            if res.converged:
+                break
+        else:
+            _stop(t, f"the coupled viscous-pressure solve did not converge in "
+                     f"{self.opts.stokes_max_iterations} iterations at dt = {dt:.3g} s after "
+                     f"{self.retries} halvings of the step (momentum residual "
+                     f"{res.momentum_residual:.2e}, largest density error "
+                     f"{res.density_error_max:.2e}). Raise run.dfsph.stokes_max_iterations or "
+                     "loosen run.dfsph.stokes_momentum_tolerance")
+        w = self.worst
+        w["stokes_momentum_residual"] = max(w["stokes_momentum_residual"], res.momentum_residual)
+        w["stokes_density_error"] = max(w["stokes_density_error"], res.density_error_max)
+        with h.phase("advance"):
+            out = self._advance(n, dt)
+        self.vmax = float(out[0])
+        if out[1] > 0:
+            h.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
+                               "the coupled solve")
+        self.creeping_now = bool(d.creeping(dt))
+        self.last = {"stokes_iterations": res.iterations, "dt": dt,
+                     "stokes_momentum_residual": res.momentum_residual,
+                     "stokes_density_error": res.density_error_max}
+        with h.phase("nozzle and inlet"):
+            h.move_boundaries(t + dt)
+        return dt
+
+    @ti.kernel
+    def _advance(self, n: ti.i32, dt: float) -> ti.types.vector(2, float):
+        """x += dt v for the melt, pressure for output; (fastest melt, non-finite melt)."""
+        vmax = 0.0
+        bad = 0.0
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                s = self.state.v[i].norm()
+                if ti.math.isnan(s) or ti.math.isinf(s):
+                    bad += 1.0
+                else:
+                    ti.atomic_max(vmax, s)
+                    rho = self.state.rho[i]
+                    self.state.p[i] = self.dfsph.kappa[i] * rho * rho / self.dfsph.rho0
+                    self.state.x[i] += dt * self.state.v[i]
+        return ti.Vector([vmax, bad])
+
+    def quasi_static(self, dt: float):
+        """One coupled solve at the present positions, nothing moved (a measurement: the
+        squeeze film's force); returns the solve's StokesResult."""
+        self.hooks.refresh_lists()
+        n = self.state.n
+        self.dfsph.prepare(n)
+        self.fluid.update()
+        self.dfsph.rows.update()
+        return self.stokes.solve(dt, self.dfsph.kappa, self.gravity)
+
     def _record_peak(self, compression: float) -> None:
         if compression > -1.0:  # some melt present
             pk = self.peak_compression
@@ -299,14 +409,23 @@ class DFSPHSolver:
             "pressure_error_worst": self.worst["density_error"],
             "viscosity_residual_worst": self.worst["viscosity_residual"],
             "time_step_halvings": self.halvings,
+            "unconverged_solves_redone": {k: v for k, v in self.unconverged.items()},
             "compression_corrections": self.corrections,
             "droplets_ejected": self.ejected,
+            "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
+            "stokes_momentum_residual_worst": self.worst["stokes_momentum_residual"],
+            "stokes_density_error_worst": self.worst["stokes_density_error"],
             "speed_clamped_particle_steps": self.clamped,
             # largest compression of any melt particle over all steps, and its mean over steps
             "compression_error_max_run": self.peak_compression["max"],
             "compression_error_step_max_mean": (self.peak_compression["sum"]
                                                 / max(self.peak_compression["steps"], 1)),
         }
+
+
+def _stop(t: float, what: str) -> None:
+    raise SimulationDiverged(f"The simulation stopped at t = {t:.6g} s: {what}. No unconverged "
+                             "step is kept; the frames written so far are.")
 
 
 class StaticSolver:

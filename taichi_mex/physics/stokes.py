@@ -1,0 +1,528 @@
+"""Viscous stress and pressure in one solve: a backward-Euler step of the incompressible
+Navier-Stokes equations without the advective term, as one saddle-point system,
+
+    u_i - dt L(u)_i + dt G(k)_i = v*_i          (momentum, per unit mass)
+                        dt D(u)_i = dt s_i      (continuity)
+
+for the new velocity u and the pressure-like k = p / rho0 of every melt particle. At a creeping
+melt's nu dt / dx^2 ~ 1e4 the viscous and pressure forces are both ~1e4 times the inertia;
+solving them one after the other (implicit viscosity, then a pressure projection) leaves a
+splitting error of the size of the solution in a layer sqrt(nu dt) wide, wider than a bead
+(Guermond, Minev & Shen, Comput. Methods Appl. Mech. Engrg. 195, 2006). Solved together, the
+step is the discrete Stokes problem itself whatever dt: its velocities do not depend on the
+viscosity's size, only on the geometry and the walls (test: squeeze film at 1000 and 12.7 Pa s).
+
+Operators (V: the rest volume, F(r) x = grad W):
+
+* L: Weiler et al.'s (2018) viscosity operator, L(u)_i = sum_j c_ij F ((u_i - u_j) . x_ij) x_ij
+  with c_ij = d mu_ij (m_j / rho_j) / rho_i / (r^2 + 0.01 H^2) and d calibrated on the lattice
+  (physics/viscosity_weiler2018.py);
+* G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
+  other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
+  D(u)_i = sum_j V (u_i - u_j) . grad W_ij + sum_b V (u_i - u_b) . grad W_ib.
+
+Walls (plate, nozzle, bore column, solidified melt) are no-slip at their own velocity v_b. A
+wall particle takes the ghost velocity of Adami, Hu & Adams (J. Comput. Phys. 231, 2012,
+Eq. 22-23), u_b = 2 v_b - u~_b with u~_b the Shepard average of the melt around it, so that the
+velocity vanishes relative to the wall at the wall's surface rather than a kernel's depth
+inside it: with u_b = v_b the squeeze film's lubrication pressure came out as for a gap 15 %
+(6 layers) to 27 % (4 layers) wider (measured, 2026-12-02). The ghost makes L non-symmetric,
+so the system is solved by GMRES (Saad & Schultz, SIAM J. Sci. Stat. Comput. 7, 1986),
+restarted, right-preconditioned with a block diagonal: the 3x3 diagonal blocks of the momentum
+rows, and for k Cahouet & Chabard's (Int. J. Numer. Methods Fluids 8, 1988) approximation of
+the Schur complement's inverse, nu_i / dt + alpha_i / dt^2 (alpha: DFSPH's diagonal factor).
+Right preconditioning makes GMRES minimise the true residual; the stop is on what the step
+leaves, measured at each restart: the momentum residual relative to the right-hand side, both
+through the diagonal blocks (so in velocities), and the largest predicted density error
+dt |D(u) - s|.
+
+Continuity source s: the compression the step removes, min(1 - rho_i / rho0, 0) / dt
+(Bender & Koschier 2017's clamp); elsewhere the velocity is divergence free. The constraint is
+an equality, so melt takes tension as freely as compression. The source is not corrected for
+expansion: at a free surface the kernel sum is short of rho0 for lack of neighbours, and a
+surface test that decides which particles those are is a threshold; with it, particles the
+test missed on one side of the squeeze film were pulled in at (1 - rho / rho0) / dt and drove
+a swirl of 0.6 V in a mirror-symmetric film. The free surface's boundary condition is the one
+the symmetric SPH sums carry: zero ambient pressure and viscous flux.
+
+An unconverged solve is reported as such (``converged``); the caller must not keep its step.
+"""
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_mex.backend import ti
+from taichi_mex.core.state import FLUID, INLET, SOLID
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class StokesResult:
+    converged: bool
+    iterations: int
+    #: |B^-1 momentum residual| / |B^-1 momentum right-hand side| (B: diagonal blocks)
+    momentum_residual: float
+    #: largest predicted density error the step leaves, dt |D(u) - s| (-)
+    density_error_max: float
+    #: mean of it over the melt (-)
+    density_error_mean: float
+
+
+@ti.data_oriented
+class CoupledStokes:
+    #: Krylov basis and scratch, rebuilt by every solve: not part of a checkpoint
+    checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
+                       "Binv", "sigma", "part")
+
+    def __init__(self, state, grid, kernel, viscosity, rho0: float, volume_m3: float,
+                 laplacian_d: float, spacing_m: float, rows, restart: int = 40,
+                 momentum_tolerance: float = 1e-6, density_tolerance: float = 1e-5,
+                 max_iterations: int = 20000):
+        """rows: a FluidIndex over the melt; laplacian_d: the viscosity operator's calibrated
+        constant (ImplicitViscosity.d)."""
+        self.state = state
+        self.grid = grid
+        self.K = kernel
+        self.visc = viscosity
+        self.rho0 = float(rho0)
+        self.V = float(volume_m3)
+        self.d = float(laplacian_d)
+        self.eps = 0.01 * kernel.H * kernel.H
+        # continuity rows are multiplied by dx: their residual is then a velocity, as the
+        # momentum rows' is, and GMRES's one norm weighs both alike
+        self.dx = float(spacing_m)
+        self.rows = rows
+        self.m = int(restart)
+        self.tol_u = float(momentum_tolerance)
+        self.tol_rho = float(density_tolerance)
+        self.max_iterations = int(max_iterations)
+        cap = state.capacity
+        vec4 = lambda: ti.Vector.field(4, ti.f64, shape=cap)  # noqa: E731
+        self.X, self.rhs, self.w, self.z = vec4(), vec4(), vec4(), vec4()
+        self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap))
+        self.ghost = ti.Vector.field(3, ti.f64, shape=cap)  # Shepard melt velocity at a wall
+        self.shepard = ti.field(ti.f64, shape=cap)  # sum_j W_bj over the melt
+        self.wall_row = ti.field(ti.i32, shape=cap)  # walls within reach of the melt
+        self.n_walls = ti.field(ti.i32, shape=())
+        self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
+        self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
+        self.sigma = ti.field(ti.f64, shape=cap)
+        self.dt = ti.field(ti.f64, shape=())
+        self.block = 256
+        self.n_blocks = max(1, (cap + self.block - 1) // self.block)
+        self.part = ti.field(ti.f64, shape=(self.m + 1, self.n_blocks))
+        self.coef = ti.field(ti.f64, shape=self.m + 1)
+        self.out3 = ti.Vector.field(3, ti.f64, shape=())
+        self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
+
+    # ------------------------------------------------------------------ operator pieces
+    @ti.func
+    def _pair_coef(self, i, j, r2):
+        st = self.state
+        mu_i = self.visc.eta_of(i)
+        c = 0.0
+        if st.phase[j] == FLUID:
+            mu_j = self.visc.eta_of(j)
+            mu = 2.0 * mu_i * mu_j / (mu_i + mu_j + 1e-30)
+            c = self.d * mu * (st.m[j] / st.rho[j]) / st.rho[i] / (r2 + self.eps)
+        else:
+            c = self.d * mu_i * (self.rho0 * self.V / st.rho[i]) / st.rho[i] / (r2 + self.eps)
+        return c
+
+    @ti.func
+    def _setup_task(self, i, slot, j, xij, acc: ti.template()):
+        """Cache c F; accumulate the 3x3 diagonal block (acc[0:9]), sum |V grad W|^2 over melt
+        (acc[9]) and sum V grad W (acc[10:13]) for alpha, and the walls' constant terms of the
+        right-hand side: momentum (acc[13:16]) and continuity (acc[16])."""
+        r2 = xij.norm_sqr()
+        cF = 0.0
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            F = self.K.F(ti.sqrt(r2))
+            cF = self._pair_coef(i, j, r2) * F
+            gV = self.V * F * xij
+            if self.state.phase[j] == FLUID:
+                acc[9] += gV.dot(gV)
+            else:
+                vb = ti.cast(self.state.v[j], ti.f64)
+                gb = 2.0 * vb if self.shepard[j] > 0.0 else vb  # Adami's ghost, less u~_b
+                w = cF * gb.dot(xij) * xij
+                for d in ti.static(range(3)):
+                    acc[13 + d] += w[d]
+                acc[16] += vb.dot(gV)
+            for d in ti.static(range(3)):
+                acc[10 + d] += gV[d]
+        self.cF[i, slot] = cF
+        for a in ti.static(range(3)):
+            for b in ti.static(range(3)):
+                acc[3 * a + b] += cF * xij[a] * xij[b]
+
+    @ti.func
+    def _shepard_task(self, b, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID:
+            acc += self.K.W(xij.norm())
+
+    @ti.func
+    def _ghost_task(self, b, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID:
+            w = self.K.W(xij.norm())
+            u = self.z[j]
+            acc += w * ti.Vector([u[0], u[1], u[2]])
+
+    @ti.func
+    def _apply_task(self, i, slot, j, xij, acc: ti.template()):
+        """acc[0:3]: L's linear part, acc[3:6]: G(k), acc[6]: D(u) (linear parts)."""
+        cF = self.cF[i, slot]
+        zi = self.z[i]
+        ui = ti.Vector([zi[0], zi[1], zi[2]])
+        F = self.K.F(xij.norm())
+        gV = self.V * F * xij
+        if self.state.phase[j] == FLUID:
+            zj = self.z[j]
+            uj = ti.Vector([zj[0], zj[1], zj[2]])
+            l = cF * (ui - uj).dot(xij) * xij
+            g = (zi[3] + zj[3]) * gV
+            for d in ti.static(range(3)):
+                acc[d] += l[d]
+                acc[3 + d] += g[d]
+            acc[6] += (ui - uj).dot(gV)
+        else:
+            ug = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            if self.shepard[j] > 0.0:
+                ug = self.ghost[j] / self.shepard[j]
+            l = cF * (ui + ug).dot(xij) * xij  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
+            g = zi[3] * gV
+            for d in ti.static(range(3)):
+                acc[d] += l[d]
+                acc[3 + d] += g[d]
+            acc[6] += ui.dot(gV)
+
+    @ti.func
+    def _apply(self, n, out: ti.template()):
+        """out = A z on the melt rows (z: the preconditioned vector)."""
+        for wslot in range(self.n_walls[None]):
+            b = self.wall_row[wslot]
+            acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.grid.for_each_neighbour(b, self._ghost_task, acc)
+            self.ghost[b] = acc
+        dt = self.dt[None]
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = ti.Vector.zero(ti.f64, 7)
+            self.grid.for_each_listed(i, self._apply_task, acc)
+            zi = self.z[i]
+            out[i] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
+                                zi[2] - dt * acc[2] + dt * acc[5], self.dx * acc[6]])
+
+    @ti.func
+    def _precondition(self, n, v: ti.template()):
+        """z = M^-1 v on the melt rows."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            vi = v[i]
+            u = self.Binv[i] @ ti.Vector([vi[0], vi[1], vi[2]])
+            self.z[i] = ti.Vector([u[0], u[1], u[2], self.sigma[i] * vi[3]])
+
+    # ------------------------------------------------------------------ kernels
+    @ti.kernel
+    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64):
+        """Walls near the melt and their Shepard sums; per-pair coefficients; preconditioner;
+        right-hand side (v* = v_n + dt g, plus the walls' constant terms)."""
+        self.dt[None] = dt
+        for i in range(self.state.n):
+            self.shepard[i] = 0.0
+            self.z[i] = ti.Vector.zero(ti.f64, 4)
+        ti.loop_config(serialize=True)  # in storage order: every launch sums in the same order
+        for _ in range(1):
+            self.n_walls[None] = 0
+            for b in range(self.state.n):
+                ph = self.state.phase[b]
+                # the bore's melt column is melt at a prescribed velocity, not a wall: it
+                # takes no ghost (u_b = v_b)
+                if ph != FLUID and ph != INLET and (ph == SOLID or self.grid.wall_needed[b] == 1):
+                    self.wall_row[self.n_walls[None]] = b
+                    self.n_walls[None] += 1
+        for wslot in range(self.n_walls[None]):
+            b = self.wall_row[wslot]
+            s = 0.0
+            self.grid.for_each_neighbour(b, self._shepard_task, s)
+            self.shepard[b] = s
+        g = ti.Vector([gx, gy, gz])
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = ti.Vector.zero(ti.f64, 17)
+            self.grid.for_each_listed(i, self._setup_task, acc)
+            B = ti.Matrix([[acc[0], acc[1], acc[2]], [acc[3], acc[4], acc[5]],
+                           [acc[6], acc[7], acc[8]]])
+            self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) - dt * B).inverse()
+            grad = ti.Vector([acc[10], acc[11], acc[12]])
+            s_alpha = acc[9] + grad.norm_sqr()
+            alpha = 1.0 / s_alpha if s_alpha > 0.0 else 0.0
+            nu = self.visc.eta_of(i) / self.rho0
+            # the Schur complement of the dx-scaled rows is dx / dt times the unscaled one's
+            self.sigma[i] = nu / self.dx + alpha / (dt * self.dx)
+            v = ti.cast(self.state.v[i], ti.f64) + dt * g
+            wall = ti.Vector([acc[13], acc[14], acc[15]])
+            mom = v - dt * wall
+            rho = ti.cast(self.state.rho[i], ti.f64)
+            s = ti.min((1.0 - rho / self.rho0) / dt, 0.0)
+            self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[16])])
+
+    @ti.kernel
+    def _residual(self, n: ti.i32) -> ti.types.vector(3, ti.f64):
+        """w = rhs - A X (z = X: X is kept unpreconditioned); returns (|B^-1 w|^2 and
+        |B^-1 rhs|^2 over the momentum rows, largest |continuity residual| as a density error
+        dt |D(u) - s|). B^-1 (the diagonal blocks' inverse) turns both into velocities: the
+        right-hand side is dominated by the walls' terms, ~ nu dt / dx^2 times the wall speed,
+        so an unscaled relative residual of 1e-6 let velocities be wrong by their own size."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.z[i] = self.X[i]
+        self._apply(n, self.w)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.w[i] = self.rhs[i] - self.w[i]
+        return self._norms(n)
+
+    @ti.func
+    def _norms(self, n):
+        nb = (n + self.block - 1) // self.block
+        for b in range(nb):
+            su = ti.cast(0.0, ti.f64)
+            sb = ti.cast(0.0, ti.f64)
+            sm = ti.cast(0.0, ti.f64)
+            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                i = self.rows.index[slot]
+                wi = self.w[i]
+                ri = self.rhs[i]
+                zw = self.Binv[i] @ ti.Vector([wi[0], wi[1], wi[2]])
+                zr = self.Binv[i] @ ti.Vector([ri[0], ri[1], ri[2]])
+                su += zw.norm_sqr()
+                sb += zr.norm_sqr()
+                sm = ti.max(sm, ti.abs(wi[3]))
+            self.part[0, b] = su
+            self.part[1, b] = sb
+            self.part[2, b] = sm
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            out = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            for b in range(nb):
+                out[0] += self.part[0, b]
+                out[1] += self.part[1, b]
+                out[2] = ti.max(out[2], self.part[2, b])
+            self.out3[None] = ti.Vector([out[0], out[1], out[2] * self.dt[None] / self.dx])
+        return self.out3[None]
+
+    @ti.kernel
+    def _start_basis(self, n: ti.i32, beta: ti.f64):
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.basis[0, i] = self.w[i] / beta
+
+    @ti.kernel
+    def _arnoldi_apply(self, n: ti.i32, j: ti.i32):
+        """w = A M^-1 v_j."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.w[i] = self.basis[j, i]
+        self._precondition(n, self.w)
+        self._apply(n, self.w)
+
+    @ti.kernel
+    def _dots(self, n: ti.i32, j: ti.i32):
+        """part[l, block] = sum over the block of v_l . w, l = 0..j."""
+        nb = (n + self.block - 1) // self.block
+        for l, b in ti.ndrange(j + 1, nb):
+            s = ti.cast(0.0, ti.f64)
+            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                i = self.rows.index[slot]
+                s += self.basis[l, i].dot(self.w[i])
+            self.part[l, b] = s
+
+    @ti.kernel
+    def _orthogonalise(self, n: ti.i32, j: ti.i32):
+        """w -= sum_l coef_l v_l."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = self.w[i]
+            for l in range(j + 1):
+                acc -= self.coef[l] * self.basis[l, i]
+            self.w[i] = acc
+
+    @ti.kernel
+    def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64):
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.basis[j, i] = self.w[i] / norm
+
+    @ti.kernel
+    def _update(self, n: ti.i32, k: ti.i32):
+        """X += M^-1 (sum_l coef_l v_l)."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = ti.Vector.zero(ti.f64, 4)
+            for l in range(k):
+                acc += self.coef[l] * self.basis[l, i]
+            self.w[i] = acc
+        self._precondition(n, self.w)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.X[i] += self.z[i]
+
+    @ti.kernel
+    def _warm(self, n: ti.i32, kappa: ti.template(), from_state: ti.i32):
+        """X0: the melt's present velocity (v_n) and, where given, last step's k."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            v = ti.cast(self.state.v[i], ti.f64)
+            k = ti.select(from_state == 1, ti.cast(kappa[i], ti.f64), 0.0)
+            self.X[i] = ti.Vector([v[0], v[1], v[2], k])
+
+    @ti.kernel
+    def _finish(self, n: ti.i32, kappa: ti.template()):
+        for slot in range(n):
+            i = self.rows.index[slot]
+            x = self.X[i]
+            # the state's precision (f32 by default): the solve's f64 is for its sums
+            self.state.v[i] = ti.Vector([ti.cast(x[0], float), ti.cast(x[1], float),
+                                         ti.cast(x[2], float)])
+            kappa[i] = ti.cast(x[3], float)
+
+    def _dot_all(self, n: int, j: int) -> np.ndarray:
+        self._dots(n, j)
+        nb = (n + self.block - 1) // self.block
+        return self.part.to_numpy()[: j + 1, :nb].sum(axis=1)
+
+    def _set_coef(self, values: np.ndarray) -> None:
+        buf = np.zeros(self.m + 1)
+        buf[: len(values)] = values
+        self.coef.from_numpy(buf)
+
+    # ------------------------------------------------------------------ public
+    def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
+              warm_pressure: bool = True) -> StokesResult:
+        """Replace the melt's velocities by the step's solution and write k into ``kappa``
+        (a per-particle field: k = p / rho0, m^2/s^2). The caller has sorted the particles,
+        built the neighbour lists, updated ``rows`` and set the densities."""
+        n = self.rows.n
+        self._setup(n, float(dt), *map(float, gravity_m_s2))
+        self._warm(n, kappa, 1 if warm_pressure else 0)
+        iterations = 0
+        m = self.m
+        while True:
+            ru, rb, rmax = self._residual(n).to_numpy()
+            rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
+            done = rel <= self.tol_u and rmax <= self.tol_rho
+            log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g", iterations,
+                      rel, rmax)
+            if done or iterations >= self.max_iterations:
+                break
+            beta = float(np.sqrt(self._dot_self(n)))  # |w|: the Krylov space's start
+            if beta == 0.0:
+                break
+            self._start_basis(n, beta)
+            H = np.zeros((m + 1, m))
+            cs, sn = np.zeros(m), np.zeros(m)
+            g = np.zeros(m + 1)
+            g[0] = beta
+            k = 0
+            for j in range(m):
+                self._arnoldi_apply(n, j)
+                h = np.zeros(j + 2)
+                for _ in range(2):  # classical Gram-Schmidt, twice (Giraud et al. 2005)
+                    c = self._dot_all(n, j)
+                    self._set_coef(c)
+                    self._orthogonalise(n, j)
+                    h[: j + 1] += c
+                h[j + 1] = breakdown = float(np.sqrt(self._dot_self(n)))
+                if breakdown > 0.0:
+                    self._store(n, j + 1, breakdown)
+                for l in range(j):  # earlier Givens rotations
+                    a, b = h[l], h[l + 1]
+                    h[l], h[l + 1] = cs[l] * a + sn[l] * b, -sn[l] * a + cs[l] * b
+                denom = float(np.hypot(h[j], h[j + 1]))
+                cs[j], sn[j] = (h[j] / denom, h[j + 1] / denom) if denom > 0 else (1.0, 0.0)
+                h[j], h[j + 1] = denom, 0.0
+                g[j + 1] = -sn[j] * g[j]
+                g[j] = cs[j] * g[j]
+                H[: j + 2, j] = h
+                k = j + 1
+                iterations += 1
+                # the Krylov residual bounds the whole residual; test the true one at restart
+                if iterations >= self.max_iterations or breakdown == 0.0:
+                    break
+            y = np.linalg.solve(np.triu(H[:k, :k]), g[:k]) if k else np.zeros(0)
+            self._set_coef(y)
+            self._update(n, k)
+        ru, rb, rmax = self._residual(n).to_numpy()
+        rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
+        converged = bool(rel <= self.tol_u and rmax <= self.tol_rho)
+        mean = self._cont_mean(n)
+        self._finish(n, kappa)
+        return StokesResult(converged, iterations, float(rel), float(rmax), mean)
+
+    @ti.kernel
+    def _dot_self_k(self, n: ti.i32):
+        nb = (n + self.block - 1) // self.block
+        for b in range(nb):
+            s = ti.cast(0.0, ti.f64)
+            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                i = self.rows.index[slot]
+                s += self.w[i].dot(self.w[i])
+            self.part[0, b] = s
+
+    def _dot_self(self, n: int) -> float:
+        self._dot_self_k(n)
+        nb = (n + self.block - 1) // self.block
+        return float(self.part.to_numpy()[0, :nb].sum())
+
+    @ti.kernel
+    def _cont_k(self, n: ti.i32):
+        nb = (n + self.block - 1) // self.block
+        for b in range(nb):
+            s = ti.cast(0.0, ti.f64)
+            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                i = self.rows.index[slot]
+                r = self.w[i][3]
+                s += ti.abs(r)
+            self.part[0, b] = s
+
+    def _cont_mean(self, n: int) -> float:
+        self._cont_k(n)
+        nb = (n + self.block - 1) // self.block
+        return float(self.part.to_numpy()[0, :nb].sum()) / max(n, 1)
+
+    # ------------------------------------------------------------------ diagnostics
+    @ti.kernel
+    def _wall_force(self, n: ti.i32) -> ti.types.vector(3, ti.f64):
+        ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
+        f = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.grid.for_each_listed(i, self._force_task, acc)
+            f += ti.cast(self.state.m[i], ti.f64) * acc
+        return f
+
+    def wall_force(self, selected: np.ndarray) -> np.ndarray:
+        """Force (N) the melt exerts on the walls flagged in ``selected`` (bool per particle
+        in storage order), from the last solve's velocities, ghosts and k."""
+        flags = np.zeros(self.state.capacity, dtype=np.int32)
+        flags[: len(selected)] = selected
+        self.force_flag.from_numpy(flags)
+        return -self._wall_force(self.rows.n).to_numpy()
+
+    @ti.func
+    def _force_task(self, i, slot, j, xij, acc: ti.template()):
+        """Acceleration of melt particle i by the flagged wall particle j."""
+        if self.state.phase[j] != FLUID and self.force_flag[j] == 1:
+            x = self.X[i]
+            ui = ti.Vector([x[0], x[1], x[2]])
+            vb = ti.cast(self.state.v[j], ti.f64)
+            ub = vb
+            if self.shepard[j] > 0.0:
+                ub = 2.0 * vb - self.ghost[j] / self.shepard[j]
+            acc += self.cF[i, slot] * (ui - ub).dot(xij) * xij
+            acc -= x[3] * self.V * self.K.F(xij.norm()) * xij

@@ -1,0 +1,101 @@
+"""The coupled viscous-pressure solve (physics/stokes.py): Stokes flow does not depend on the
+viscosity's size, the solution keeps the geometry's symmetry, and an unconverged step is never
+kept. Force and profile against Stefan's and Poiseuille's laws: validation/squeeze_film and
+validation/bore_flow."""
+
+import numpy as np
+import pytest
+
+from taichi_mex.core.state import FLUID, NOZZLE
+from taichi_mex.errors import SimulationDiverged
+from taichi_mex.scenes.squeeze_film import stefan_force_n
+from taichi_mex.sim.simulation import Simulation
+from taichi_mex.spec import RunSpec
+
+SPEED = 1e-3  # the disc's, m/s (the scene's default)
+
+
+def _film(viscosity_pa_s: float, **changes):
+    spec = RunSpec.create("squeeze-film", changes={"radius_mm": 0.5, "gap_mm": 0.2,
+                                                   "material.viscosity_pa_s": viscosity_pa_s,
+                                                   "run.progress": False, **changes})
+    sim = Simulation.from_spec(spec)
+    sim.build()
+    return sim
+
+
+def _solve(sim):
+    dx = sim.run_opts.spacing_m
+    # a step 1e6 x the viscous diffusion time of a spacing: inertia is 1e-6 of the forces
+    dt = 1e6 * dx * dx * sim.material.density_kg_m3 / sim.material.viscosity_pa_s
+    res = sim.solver.quasi_static(dt)
+    x = sim.state.numpy("position", FLUID)
+    v = sim.state.numpy("velocity", FLUID)
+    order = np.lexsort(x.T)
+    force = sim.solver.stokes.wall_force(sim.state.numpy("phase") == NOZZLE)
+    return res, x[order], v[order], force
+
+
+def test_squeeze_film_velocities_do_not_depend_on_viscosity():
+    """Stokes flow is linear in the walls' speed and free of mu: the same disc at 1000 and
+    12.7 Pa s moves the melt alike (the issue's bound: 1 % of V), and the force scales with mu."""
+    res_a, x, va, fa = _solve(_film(1000.0))
+    res_b, _, vb, fb = _solve(_film(12.7))
+    assert res_a.converged and res_b.converged
+    assert np.abs(va - vb).max() < 0.01 * SPEED
+    assert fa[2] / 1000.0 == pytest.approx(fb[2] / 12.7, rel=1e-3)
+    assert fa[2] > 0.0  # the film resists the disc
+
+
+def test_squeeze_film_solution_keeps_the_mirror_symmetry():
+    """x -> -x maps the film onto itself; so must the velocities (a density source at the free
+    surface that the surface test flagged on one side only once drove a swirl of 0.6 V)."""
+    sim = _film(1000.0)
+    res, x, v, _ = _solve(sim)
+    assert res.converged
+    key = {tuple(k): i for i, k in enumerate(np.round(2 * x / sim.run_opts.spacing_m).astype(int))}
+    mirror = np.array([key[(-a, b, c)] for a, b, c in np.round(2 * x / sim.run_opts.spacing_m).astype(int)])
+    assert np.abs(v[:, 0] + v[mirror, 0]).max() < 1e-3 * SPEED
+    assert np.abs(v[:, 1:] - v[mirror, 1:]).max() < 1e-3 * SPEED
+
+
+def test_coarse_squeeze_film_force_stays_where_measured():
+    """The coarse film (4 layers, R = 2.5 h) is not yet within the issue's 5 %: its measured
+    ratio is recorded here so that a change of the operators shows (validation/squeeze_film has
+    the resolution study)."""
+    sim = _film(1000.0)
+    _, _, _, force = _solve(sim)
+    ratio = force[2] / stefan_force_n(1000.0, SPEED, 0.5e-3, 0.2e-3)
+    assert 1.3 < ratio < 1.7
+
+
+def test_an_unconverged_coupled_step_stops_the_run():
+    """A solve that hits its iteration cap is redone with half the step, and after the allowed
+    halvings the run stops with the time and the cause; no step of it is kept."""
+    spec = RunSpec.create("collapse", changes={
+        "radius_mm": 2.0, "height_mm": 2.0, "until": 0.05, "spacing_mm": 0.5,
+        "run.dfsph.creeping_solve": "coupled", "run.dfsph.stokes_max_iterations": 2,
+        "run.dfsph.step_retries": 1, "run.progress": False, "run.snapshots": False})
+    sim = Simulation.from_spec(spec)
+    with pytest.raises(SimulationDiverged, match=r"stopped at t = 0 s: the coupled "
+                                                 r"viscous-pressure solve did not converge"):
+        sim.run()
+    assert sim.steps == 0
+    assert sim.solver.halvings == 1
+
+
+@pytest.mark.parametrize("solve", ["split", "coupled"])
+def test_the_first_step_does_not_depend_on_the_run_length(solve):
+    """Melt released from rest: the first step follows the force that starts it (Monaghan's
+    criterion on gravity), not --until (the collapse at 1 Pa s once took until / 60)."""
+    first = []
+    for until in (0.05, 3.0):
+        spec = RunSpec.create("collapse", changes={
+            "until": until, "spacing_mm": 0.5, "run.dfsph.creeping_solve": solve,
+            "material.viscosity_pa_s": 1.0, "run.progress": False, "run.snapshots": False})
+        sim = Simulation.from_spec(spec)
+        sim.build()
+        dt, limits = sim.solver.time_step()
+        first.append(dt)
+        assert min(limits, key=limits.get) == "force"
+    assert first[0] == first[1]
