@@ -25,10 +25,7 @@ def _film(viscosity_pa_s: float, **changes):
 
 
 def _solve(sim):
-    dx = sim.run_opts.spacing_m
-    # a step 1e6 x the viscous diffusion time of a spacing: inertia is 1e-6 of the forces
-    dt = 1e6 * dx * dx * sim.material.density_kg_m3 / sim.material.viscosity_pa_s
-    res = sim.solver.quasi_static(dt)
+    res = sim.solver.quasi_static()
     x = sim.state.numpy("position", FLUID)
     v = sim.state.numpy("velocity", FLUID)
     order = np.lexsort(x.T)
@@ -99,3 +96,24 @@ def test_the_first_step_does_not_depend_on_the_run_length(solve):
         first.append(dt)
         assert min(limits, key=limits.get) == "force"
     assert first[0] == first[1]
+
+
+def test_the_validation_scenes_refuse_the_split_solve_up_front():
+    from taichi_mex.errors import UserInputError
+
+    for scene in ("squeeze-film", "bore-flow"):
+        spec = RunSpec.create(scene, changes={"run.dfsph.creeping_solve": "split"})
+        with pytest.raises(UserInputError, match="--creeping-solve coupled"):
+            Simulation.from_spec(spec)
+
+
+def test_bore_flow_profile_is_poiseuilles():
+    """Melt falling through the 0.4 mm bore, 4 particles per radius: the ring-averaged axial
+    velocity of the middle third within the issue's 3 % of u_max of Hagen-Poiseuille's
+    (measured 1.7 %)."""
+    spec = RunSpec.create("bore-flow", changes={"spacing_mm": 0.05, "run.progress": False})
+    sim = Simulation.from_spec(spec)
+    sim.build()
+    out = sim.scene.analyse(sim)
+    assert out["stokes_converged"]
+    assert out["profile_error_max"] < 0.03

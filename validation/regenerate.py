@@ -249,7 +249,7 @@ CASES = {
          for r, h, mu in ((0.5, 0.2, 1000), (0.5, 0.2, 12.7), (1.0, 0.2, 1000), (2.0, 0.2, 1000),
                           (1.5, 0.3, 1000), (2.0, 0.4, 1000))],
         [("R 0.5 mm, h 0.2 mm", scene("squeeze-film", "--radius-mm", 0.5, "--gap-mm", 0.2))],
-        [("particles", num("particles_active")), ("wall s", num("wall_time_s")),
+        [("particles", num("particles_active")),
          ("R / h", lambda r: f"{r['radius_m'] / r['gap_m']:.1f}" if r.get("gap_m") else ""),
          ("force / Stefan", num("force_ratio", "{:.3f}")),
          ("centre pressure / lubrication", num("centre_pressure_ratio", "{:.3f}")),
@@ -261,7 +261,7 @@ CASES = {
         [(f"{dx} mm ({0.2 / dx:.0f} per radius)", scene("bore-flow", "--spacing-mm", dx))
          for dx in (0.05, 0.033, 0.025)],
         [("0.05 mm", scene("bore-flow", "--spacing-mm", 0.05))],
-        [("particles", num("particles_active")), ("wall s", num("wall_time_s")),
+        [("particles", num("particles_active")),
          ("centre u / Poiseuille", num("centre_ratio", "{:.3f}")),
          ("max error / u_max", pct("profile_error_max")),
          ("rms error / u_max", pct("profile_error_rms")),

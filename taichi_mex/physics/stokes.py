@@ -77,20 +77,19 @@ class CoupledStokes:
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part")
 
-    def __init__(self, state, grid, kernel, viscosity, rho0: float, volume_m3: float,
-                 laplacian_d: float, spacing_m: float, rows, restart: int = 40,
+    def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
+                 spacing_m: float, rows, restart: int = 40,
                  momentum_tolerance: float = 1e-6, density_tolerance: float = 1e-5,
                  max_iterations: int = 20000):
-        """rows: a FluidIndex over the melt; laplacian_d: the viscosity operator's calibrated
-        constant (ImplicitViscosity.d)."""
+        """viscosity: the melt's MeltViscosity; viscous: the ImplicitViscosity whose pair
+        coefficients L uses; rows: a FluidIndex over the melt."""
         self.state = state
         self.grid = grid
         self.K = kernel
         self.visc = viscosity
+        self.viscous = viscous
         self.rho0 = float(rho0)
         self.V = float(volume_m3)
-        self.d = float(laplacian_d)
-        self.eps = 0.01 * kernel.H * kernel.H
         # continuity rows are multiplied by dx: their residual is then a velocity, as the
         # momentum rows' is, and GMRES's one norm weighs both alike
         self.dx = float(spacing_m)
@@ -120,19 +119,6 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ operator pieces
     @ti.func
-    def _pair_coef(self, i, j, r2):
-        st = self.state
-        mu_i = self.visc.eta_of(i)
-        c = 0.0
-        if st.phase[j] == FLUID:
-            mu_j = self.visc.eta_of(j)
-            mu = 2.0 * mu_i * mu_j / (mu_i + mu_j + 1e-30)
-            c = self.d * mu * (st.m[j] / st.rho[j]) / st.rho[i] / (r2 + self.eps)
-        else:
-            c = self.d * mu_i * (self.rho0 * self.V / st.rho[i]) / st.rho[i] / (r2 + self.eps)
-        return c
-
-    @ti.func
     def _setup_task(self, i, slot, j, xij, acc: ti.template()):
         """Cache c F; accumulate the 3x3 diagonal block (acc[0:9]), sum |V grad W|^2 over melt
         (acc[9]) and sum V grad W (acc[10:13]) for alpha, and the walls' constant terms of the
@@ -141,7 +127,7 @@ class CoupledStokes:
         cF = 0.0
         if r2 < self.K.H * self.K.H and r2 > 0.0:
             F = self.K.F(ti.sqrt(r2))
-            cF = self._pair_coef(i, j, r2) * F
+            cF = self.viscous._coef(i, j, r2) * F
             gV = self.V * F * xij
             if self.state.phase[j] == FLUID:
                 acc[9] += gV.dot(gV)
@@ -419,7 +405,7 @@ class CoupledStokes:
                       rel, rmax)
             if done or iterations >= self.max_iterations:
                 break
-            beta = float(np.sqrt(self._dot_self(n)))  # |w|: the Krylov space's start
+            beta = float(np.sqrt(self._sum(n, False)))  # |w|: the Krylov space's start
             if beta == 0.0:
                 break
             self._start_basis(n, beta)
@@ -436,7 +422,7 @@ class CoupledStokes:
                     self._set_coef(c)
                     self._orthogonalise(n, j)
                     h[: j + 1] += c
-                h[j + 1] = breakdown = float(np.sqrt(self._dot_self(n)))
+                h[j + 1] = breakdown = float(np.sqrt(self._sum(n, False)))
                 if breakdown > 0.0:
                     self._store(n, j + 1, breakdown)
                 for l in range(j):  # earlier Givens rotations
@@ -459,40 +445,28 @@ class CoupledStokes:
         ru, rb, rmax = self._residual(n).to_numpy()
         rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
         converged = bool(rel <= self.tol_u and rmax <= self.tol_rho)
-        mean = self._cont_mean(n)
+        mean = self._sum(n, True) / max(n, 1)
         self._finish(n, kappa)
         return StokesResult(converged, iterations, float(rel), float(rmax), mean)
 
     @ti.kernel
-    def _dot_self_k(self, n: ti.i32):
+    def _block_sums(self, n: ti.i32, continuity: ti.template()):
+        """part[0, block]: sum of |w|^2 over the block, or of |w_k| (the continuity rows)."""
         nb = (n + self.block - 1) // self.block
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
                 i = self.rows.index[slot]
-                s += self.w[i].dot(self.w[i])
+                if ti.static(continuity):
+                    s += ti.abs(self.w[i][3])
+                else:
+                    s += self.w[i].dot(self.w[i])
             self.part[0, b] = s
 
-    def _dot_self(self, n: int) -> float:
-        self._dot_self_k(n)
+    def _sum(self, n: int, continuity: bool) -> float:
+        self._block_sums(n, continuity)
         nb = (n + self.block - 1) // self.block
         return float(self.part.to_numpy()[0, :nb].sum())
-
-    @ti.kernel
-    def _cont_k(self, n: ti.i32):
-        nb = (n + self.block - 1) // self.block
-        for b in range(nb):
-            s = ti.cast(0.0, ti.f64)
-            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
-                i = self.rows.index[slot]
-                r = self.w[i][3]
-                s += ti.abs(r)
-            self.part[0, b] = s
-
-    def _cont_mean(self, n: int) -> float:
-        self._cont_k(n)
-        nb = (n + self.block - 1) // self.block
-        return float(self.part.to_numpy()[0, :nb].sum()) / max(n, 1)
 
     # ------------------------------------------------------------------ diagnostics
     @ti.kernel

@@ -101,3 +101,12 @@ def lattice_block(lo_m, hi_m, spacing_m: float) -> np.ndarray:
     axes = [lo[k] + (np.arange(n[k]) + 0.5) * spacing_m for k in range(3)]
     X, Y, Z = np.meshgrid(*axes, indexing="ij")
     return np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+
+
+def require_coupled_solve(run, scene: str) -> None:
+    """Scenes measured by one coupled viscous-pressure solve refuse other solvers up front."""
+    from taichi_mex.errors import UserInputError
+
+    if run.scheme != "dfsph" or run.dfsph.creeping_solve != "coupled":
+        raise UserInputError(f"The {scene} is measured by one coupled viscous-pressure solve: "
+                             "run it with --scheme dfsph --creeping-solve coupled (its default).")

@@ -20,7 +20,7 @@ import numpy as np
 from taichi_mex.core.state import FLUID, NOZZLE, PLATE
 from taichi_mex.errors import UserInputError
 from taichi_mex.options import Positive, opt
-from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block
+from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block, require_coupled_solve
 from taichi_mex.scenes.registry import SceneEntry, register
 
 
@@ -38,6 +38,7 @@ class SqueezeFilmScene:
         self.V = speed_mm_s * 1e-3
 
     def plan(self, run, material) -> ScenePlan:
+        require_coupled_solve(run, "squeeze film")
         dx = run.spacing_m
         R, h = self.R, self.h
         if abs(h / dx - round(h / dx)) > 1e-6 or round(h / dx) < 2:
@@ -66,17 +67,12 @@ class SqueezeFilmScene:
         )
 
     def analyse(self, sim) -> dict:
-        """One coupled solve (dt long enough that inertia is ~1e-6 of the viscous terms), the
-        force on the disc against Stefan's law, and the film's centre pressure against
-        3 mu V R^2 / h^3."""
+        """One coupled solve; the force on the disc against Stefan's law, and the film's
+        centre pressure against 3 mu V R^2 / h^3."""
         solver = sim.solver
-        if getattr(solver, "stokes", None) is None:
-            return {"error": "the squeeze film needs --creeping-solve coupled"}
         mu = sim.material.viscosity_pa_s
         rho = sim.material.density_kg_m3
-        dx = sim.run_opts.spacing_m
-        dt = 1e6 * dx * dx * rho / mu
-        res = solver.quasi_static(dt)
+        res = solver.quasi_static()
         phase = sim.state.numpy("phase")
         force = solver.stokes.wall_force(phase == NOZZLE)
         gap, R = sim.plan.info["gap_m"], sim.plan.info["radius_m"]

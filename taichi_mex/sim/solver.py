@@ -150,8 +150,8 @@ class DFSPHSolver:
         self.stokes = None
         if run.dfsph.creeping_solve == "coupled":
             o = run.dfsph
-            self.stokes = CoupledStokes(state, grid, kernel, viscosity, rho0, self.dfsph.V0,
-                                        self.visc.d, run.spacing_m, self.fluid,
+            self.stokes = CoupledStokes(state, grid, kernel, viscosity, self.visc, rho0,
+                                        self.dfsph.V0, run.spacing_m, self.fluid,
                                         o.stokes_restart,
                                         o.stokes_momentum_tolerance, o.stokes_density_tolerance,
                                         o.stokes_max_iterations)
@@ -373,9 +373,12 @@ class DFSPHSolver:
                     self.state.x[i] += dt * self.state.v[i]
         return ti.Vector([vmax, bad])
 
-    def quasi_static(self, dt: float):
+    def quasi_static(self):
         """One coupled solve at the present positions, nothing moved (a measurement: the
-        squeeze film's force); returns the solve's StokesResult."""
+        squeeze film's force), with a step 1e6 times a spacing's viscous diffusion time, so
+        that inertia is 1e-6 of the viscous forces; returns the solve's StokesResult."""
+        nu = self.visc.visc.min_value() / self.dfsph.rho0
+        dt = 1e6 * self.dx * self.dx / nu
         self.hooks.refresh_lists()
         n = self.state.n
         self.dfsph.prepare(n)
