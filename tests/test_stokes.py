@@ -79,6 +79,7 @@ def test_an_unconverged_coupled_step_stops_the_run():
         sim.run()
     assert sim.steps == 0
     assert sim.solver.halvings == 1
+    assert sim.solver.unconverged["coupled"] == 2  # both tries, reported in summary.json
 
 
 @pytest.mark.parametrize("solve", ["split", "coupled"])

@@ -114,26 +114,42 @@ def _sections(meso: dict | None, plan, config) -> str:
 
 
 def _health(summary: dict) -> str:
+    """The solver's figures this run recorded; a row whose figures the run did not record (a
+    scheme without that solve) is left out."""
+    def pct(key):
+        value = summary.get(key)
+        return None if value is None else f"{_num(100 * value, 3)} %"
+
     lost = summary.get("particles_lost", 0)
+    redone = summary.get("unconverged_solves_redone") or {}
     rows = [
-        ["particles lost", _verdict(not lost, f"{lost}")],
+        ["particles lost", [_verdict(not lost, f"{lost}")]],
         ["deposited / commanded volume (mm³)",
-         f"{_num(summary.get('deposited_volume_mm3'))} / {_num(summary.get('commanded_volume_mm3'))}"],
+         [_num(summary.get("deposited_volume_mm3")), _num(summary.get("commanded_volume_mm3"))]],
         ["density error, interior melt: mean / max",
-         f"{_num(100 * summary.get('density_error_mean', float('nan')), 3)} % / "
-         f"{_num(100 * summary.get('density_error_max', float('nan')), 3)} %"],
-        ["compression, all melt: mean / max (end); worst step",
-         f"{_num(100 * summary.get('compression_error_mean', float('nan')), 3)} % / "
-         f"{_num(100 * summary.get('compression_error_max', float('nan')), 3)} %; "
-         f"{_num(100 * summary.get('compression_error_max_run', float('nan')), 3)} %"],
-        ["pressure / viscosity iterations per step",
-         f"{_num(summary.get('pressure_iterations_per_step'))} / {_num(summary.get('viscosity_iterations_per_step'))}"],
-        ["worst viscous residual", summary.get("viscosity_residual_worst")],
-        ["time-step halvings", summary.get("time_step_halvings")],
-        ["paired fraction (SPH pairing)", summary.get("paired_fraction")],
+         [pct("density_error_mean"), pct("density_error_max")]],
+        ["compression, all melt: mean / max (end) / worst step",
+         [pct("compression_error_mean"), pct("compression_error_max"),
+          pct("compression_error_max_run")]],
+        ["pressure / viscosity CG iterations per step",
+         [_num(summary.get("pressure_iterations_per_step")),
+          _num(summary.get("viscosity_iterations_per_step"))]],
+        ["coupled solve: GMRES iterations per step / worst momentum residual / worst density "
+         "error", [_num(summary.get("stokes_iterations_per_step")),
+                   _num(summary.get("stokes_momentum_residual_worst")),
+                   _num(summary.get("stokes_density_error_worst"))]],
+        ["worst viscous residual", [_num(summary.get("viscosity_residual_worst"))]],
+        ["unconverged solves (each step redone at half size)",
+         [_verdict(not sum(redone.values()), ", ".join(f"{k} {v}" for k, v in redone.items()))
+          if redone else None]],
+        ["time-step halvings", [_num(summary.get("time_step_halvings"))]],
+        ["paired fraction (SPH pairing)", [_num(summary.get("paired_fraction"))]],
     ]
-    rows = [r for r in rows if "–" not in str(r[1]) or r[0] == "particles lost"]
-    return _table(rows)
+    shown = [[label, " / ".join(v for v in values)] for label, values in rows
+             if label == "particles lost"
+             or all(v is not None and v != _num(None) for v in values)
+             and not all(v == _num(0.0) for v in values)]
+    return _table(shown)
 
 
 def _thermal(summary: dict) -> str:

@@ -165,7 +165,7 @@ class DFSPHSolver:
         self.halvings = 0
         # solves stopped by their iteration cap (each makes its step be redone)
         self.unconverged = {"divergence": 0, "viscosity": 0, "pressure": 0,
-                            "compression correction": 0}
+                            "compression correction": 0, "coupled": 0}
         self.corrections = 0
         self.ejected = 0
         self.clamped = 0
@@ -332,6 +332,7 @@ class DFSPHSolver:
             self.totals["stokes_iterations"] += res.iterations
             if res.converged:
                 break
+            self.unconverged["coupled"] += 1
         else:
             _stop(t, f"the coupled viscous-pressure solve did not converge in "
                      f"{self.opts.stokes_max_iterations} iterations at dt = {dt:.3g} s after "
