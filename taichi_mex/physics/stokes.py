@@ -302,12 +302,6 @@ class CoupledStokes:
         return self.out3[None]
 
     @ti.kernel
-    def _start_basis(self, n: ti.i32, beta: ti.f64):
-        for slot in range(n):
-            i = self.rows.index[slot]
-            self.basis[0, i] = self.w[i] / beta
-
-    @ti.kernel
     def _arnoldi_apply(self, n: ti.i32, j: ti.i32):
         """w = A M^-1 v_j."""
         for slot in range(n):
@@ -339,6 +333,7 @@ class CoupledStokes:
 
     @ti.kernel
     def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64):
+        """v_j = w / norm."""
         for slot in range(n):
             i = self.rows.index[slot]
             self.basis[j, i] = self.w[i] / norm
@@ -403,12 +398,10 @@ class CoupledStokes:
             done = rel <= self.tol_u and rmax <= self.tol_rho
             log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g", iterations,
                       rel, rmax)
-            if done or iterations >= self.max_iterations:
-                break
             beta = float(np.sqrt(self._sum(n, False)))  # |w|: the Krylov space's start
-            if beta == 0.0:
-                break
-            self._start_basis(n, beta)
+            if done or iterations >= self.max_iterations or beta == 0.0:
+                break  # w holds the residual of X: the result is read from it below
+            self._store(n, 0, beta)
             H = np.zeros((m + 1, m))
             cs, sn = np.zeros(m), np.zeros(m)
             g = np.zeros(m + 1)
@@ -442,12 +435,9 @@ class CoupledStokes:
             y = np.linalg.solve(np.triu(H[:k, :k]), g[:k]) if k else np.zeros(0)
             self._set_coef(y)
             self._update(n, k)
-        ru, rb, rmax = self._residual(n).to_numpy()
-        rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
-        converged = bool(rel <= self.tol_u and rmax <= self.tol_rho)
         mean = self._sum(n, True) / max(n, 1)
         self._finish(n, kappa)
-        return StokesResult(converged, iterations, float(rel), float(rmax), mean)
+        return StokesResult(bool(done), iterations, float(rel), float(rmax), mean)
 
     @ti.kernel
     def _block_sums(self, n: ti.i32, continuity: ti.template()):

@@ -160,7 +160,6 @@ class DFSPHSolver:
         self.retries = int(run.dfsph.step_retries)
         self.clamp_alarm = float(run.dfsph.stabilisers.clamp_alarm)
         self.vmax = 0.0
-        self.gravity_norm = float(run.gravity_m_s2)
         self.dx = run.spacing_m
         self.halvings = 0
         # solves stopped by their iteration cap (each makes its step be redone)
@@ -195,8 +194,9 @@ class DFSPHSolver:
         o = self.opts
         speed = max(self.vmax, self.hooks.boundary_speed(), 1e-6)
         limits = {"cfl": o.cfl * 0.4 * self.dx / speed, "max": self.max_dt}
-        if self.hooks.steps() == 0 and self.gravity_norm > 0.0:
-            limits["force"] = 0.25 * (0.5 * self.dfsph.K.H / self.gravity_norm) ** 0.5
+        g = abs(self.gravity[2])
+        if self.hooks.steps() == 0 and g > 0.0:
+            limits["force"] = 0.25 * (0.5 * self.dfsph.K.H / g) ** 0.5
         limits.update(self.hooks.extra_dt_limits())
         return min(limits.values()), limits
 
@@ -413,7 +413,7 @@ class DFSPHSolver:
             "pressure_error_worst": self.worst["density_error"],
             "viscosity_residual_worst": self.worst["viscosity_residual"],
             "time_step_halvings": self.halvings,
-            "unconverged_solves_redone": {k: v for k, v in self.unconverged.items()},
+            "unconverged_solves_redone": dict(self.unconverged),
             "compression_corrections": self.corrections,
             "droplets_ejected": self.ejected,
             "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
