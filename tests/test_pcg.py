@@ -26,6 +26,12 @@ def _chain(dim):
             self.index.from_numpy(np.array(list(listed) + [0] * (N - len(listed)), np.int32))
             self.total[None] = N
             self.n = len(listed)
+            # where each BLOCK of particle indices starts in the list (FluidIndex's layout)
+            from taichi_mex.core.reduce import BLOCK
+            edges = np.arange(0, N // BLOCK + 2) * BLOCK
+            starts = np.searchsorted(np.asarray(listed), edges).astype(np.int32)
+            self.block_start = ti.field(ti.i32, shape=len(starts))
+            self.block_start.from_numpy(starts)
 
     @ti.data_oriented
     class Chain:

@@ -16,7 +16,9 @@ each particle's neighbours, whose pattern changes every step and whose entries c
 store as to recompute), so one iteration costs one operator application, three dot products
 (p.Ap, r.z and the stopping measure; the last two summed from one pass over the rows) and
 a few per-row updates. The unknowns live on the
-caller's rows (``rows.index[0..n)``, a ``FluidIndex``): a scalar or a 3-vector per particle.
+caller's rows (``rows.index[0..n)``, a ``FluidIndex``, in storage order, with
+``rows.block_start`` saying where each ``BLOCK`` of particle indices begins in the list): a
+scalar or a 3-vector per particle.
 
 The caller is a ``@ti.data_oriented`` object passed as ``problem``; it provides these
 ``@ti.func`` methods (``mode`` is a compile-time value passed through unchanged, for a caller
@@ -54,7 +56,7 @@ about as much as an iteration on a small melt); iterations after convergence do 
 from typing import NamedTuple
 
 from taichi_mex.backend import ti
-from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.reduce import BLOCK, BlockSum
 
 
 class Stop(NamedTuple):
@@ -110,6 +112,12 @@ class PCG:
         self.term = ti.field(float, shape=capacity)
         self.term_rz = ti.field(float, shape=capacity)
         self.sum = BlockSum(capacity)
+        # per-block partial sums of an iteration's three reductions (f64), grouped as
+        # ``sum`` groups them: one pass over the rows fills all three
+        n_blocks = capacity // BLOCK + 2
+        self.part_a = ti.field(ti.f64, shape=n_blocks)
+        self.part_b = ti.field(ti.f64, shape=n_blocks)
+        self.part_max = ti.field(ti.f64, shape=n_blocks)
         self.s = Scalars()
 
     # ---------------------------------------------------------------- for the caller's kernels
@@ -212,63 +220,117 @@ class PCG:
     @ti.func
     def _begin_rows(self, n, b: ti.template(), from_b: ti.template(), mode: ti.template(), tol,
                     tol_max, rel2, scale, min_iter, max_iter):
-        for slot in range(n):
-            i = self.rows.index[slot]
-            r = self.r[i]
-            if ti.static(from_b):
-                r = b[i] - self.Ap[i]
-                self.r[i] = r
-            z = self.problem.precondition(i, r, mode)
-            self.z[i] = z
-            self.p[i] = z
-            self.term_rz[i] = self.dot(r, z)
-            self.term[i] = self.problem.residual_term(i, r, mode)
-        self.sum.sum(self.term_rz, self.rows.total[None])
+        for blk in range(self._blocks()):
+            s_rz = ti.cast(0.0, ti.f64)
+            s_res = ti.cast(0.0, ti.f64)
+            s_max = ti.cast(0.0, ti.f64)
+            for slot in range(self.rows.block_start[blk], self.rows.block_start[blk + 1]):
+                i = self.rows.index[slot]
+                r = self.r[i]
+                if ti.static(from_b):
+                    r = b[i] - self.Ap[i]
+                    self.r[i] = r
+                z = self.problem.precondition(i, r, mode)
+                self.z[i] = z
+                self.p[i] = z
+                rz = self.dot(r, z)
+                t = self.problem.residual_term(i, r, mode)
+                self.term_rz[i] = rz
+                self.term[i] = t
+                s_rz += ti.cast(rz, ti.f64)
+                s_res += ti.cast(t, ti.f64)
+                s_max = ti.max(s_max, ti.cast(t, ti.f64))
+            self.part_a[blk] = s_rz
+            self.part_b[blk] = s_res
+            self.part_max[blk] = s_max
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self.s.rz[None] = self.sum.total[None]
-            self.s.rz0[None] = self.sum.total[None]
-        self._measure()
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            if self._met(tol, tol_max, rel2, scale, min_iter, max_iter, self.s.rz[None]):
+            rz = self._total(self.part_a)
+            self.s.rz[None] = rz
+            self.s.rz0[None] = rz
+            self.s.res_sum[None] = self._total(self.part_b)
+            if ti.static(self.track_max):
+                self.s.res_max[None] = self._largest(self.part_max)
+            if self._met(tol, tol_max, rel2, scale, min_iter, max_iter, rz):
                 self.s.done[None] = 1
+
+    @ti.func
+    def _blocks(self):
+        return (self.rows.total[None] + BLOCK - 1) // BLOCK
+
+    @ti.func
+    def _total(self, part: ti.template()):
+        """The blocks' partial sums in order (inside a serial section)."""
+        s = ti.cast(0.0, ti.f64)
+        for blk in range(self._blocks()):
+            s += part[blk]
+        return s
+
+    @ti.func
+    def _largest(self, part: ti.template()):
+        s = ti.cast(0.0, ti.f64)
+        for blk in range(self._blocks()):
+            s = ti.max(s, part[blk])
+        return s
 
     # ---------------------------------------------------------------- kernels
     @ti.kernel
     def _iterate(self, n: ti.i32, tol: ti.f64, tol_max: ti.f64, rel2: ti.f64, scale: ti.f64,
                  min_iter: ti.i32, max_iter: ti.i32,
                  mode: ti.template()) -> ti.types.vector(4, ti.f64):
-        """``chunk`` iterations of Saad's Alg. 9.1."""
+        """``chunk`` iterations of Saad's Alg. 9.1. Each iteration is the operator, then one
+        pass over the rows per reduction point (p.Ap; the update with r.z and the stopping
+        measure), each summing its rows block by block, and the serial scalar updates:
+        Taichi's cost per parallel loop, not the arithmetic, is most of an iteration on a
+        small melt, so the loops are as few as the algorithm's dependencies allow. The
+        blocks group the sums as ``BlockSum`` over all live particles would: the same bits."""
         for _step in ti.static(range(self.chunk)):
             self.problem.apply(n, self.s.done[None], mode)
-            for slot in range(n):
-                i = self.rows.index[slot]
-                self.term[i] = self.dot(self.p[i], self.Ap[i])
-            self.sum.sum(self.term, self.rows.total[None])
+            for blk in range(self._blocks()):
+                s_pap = ti.cast(0.0, ti.f64)
+                if self.s.done[None] == 0:
+                    for slot in range(self.rows.block_start[blk], self.rows.block_start[blk + 1]):
+                        i = self.rows.index[slot]
+                        pap = self.dot(self.p[i], self.Ap[i])
+                        self.term[i] = pap
+                        s_pap += ti.cast(pap, ti.f64)
+                self.part_a[blk] = s_pap
             ti.loop_config(serialize=True)
             for _ in range(1):
                 if self.s.done[None] == 0:
-                    pAp = self.sum.total[None]
+                    pAp = self._total(self.part_a)
                     self.s.alpha[None] = self.s.rz[None] / pAp if pAp > 0.0 else 0.0
                     self.s.iterations[None] += 1
-            for slot in range(n):
-                i = self.rows.index[slot]
+            for blk in range(self._blocks()):
+                s_rz = ti.cast(0.0, ti.f64)
+                s_res = ti.cast(0.0, ti.f64)
+                s_max = ti.cast(0.0, ti.f64)
                 if self.s.done[None] == 0:
                     a = ti.cast(self.s.alpha[None], float)
-                    self.problem.advance(i, a, mode)
-                    r = self.r[i] - a * self.Ap[i]
-                    self.r[i] = r
-                    z = self.problem.precondition(i, r, mode)
-                    self.z[i] = z
-                    self.term[i] = self.problem.residual_term(i, r, mode)
-                    self.term_rz[i] = self.dot(r, z)
-            self._measure()
-            self.sum.sum(self.term_rz, self.rows.total[None])
+                    for slot in range(self.rows.block_start[blk], self.rows.block_start[blk + 1]):
+                        i = self.rows.index[slot]
+                        self.problem.advance(i, a, mode)
+                        r = self.r[i] - a * self.Ap[i]
+                        self.r[i] = r
+                        z = self.problem.precondition(i, r, mode)
+                        self.z[i] = z
+                        t = self.problem.residual_term(i, r, mode)
+                        rz = self.dot(r, z)
+                        self.term[i] = t
+                        self.term_rz[i] = rz
+                        s_rz += ti.cast(rz, ti.f64)
+                        s_res += ti.cast(t, ti.f64)
+                        s_max = ti.max(s_max, ti.cast(t, ti.f64))
+                self.part_a[blk] = s_rz
+                self.part_b[blk] = s_res
+                self.part_max[blk] = s_max
             ti.loop_config(serialize=True)
             for _ in range(1):
                 if self.s.done[None] == 0:
-                    rz = self.sum.total[None]
+                    self.s.res_sum[None] = self._total(self.part_b)
+                    if ti.static(self.track_max):
+                        self.s.res_max[None] = self._largest(self.part_max)
+                    rz = self._total(self.part_a)
                     if self._met(tol, tol_max, rel2, scale, min_iter, max_iter, rz):
                         self.s.done[None] = 1
                     else:

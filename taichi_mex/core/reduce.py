@@ -10,10 +10,13 @@ import math
 
 from taichi_mex.backend import ti
 
+#: elements per block: a sum's grouping, and so its rounding, is fixed by it
+BLOCK = 256
+
 
 @ti.data_oriented
 class BlockSum:
-    def __init__(self, capacity: int, block: int = 256):
+    def __init__(self, capacity: int, block: int = BLOCK):
         self.block = int(block)
         self.n_blocks = max(1, math.ceil(capacity / self.block))
         self.partial = ti.field(ti.f64, shape=self.n_blocks)

@@ -13,6 +13,7 @@ Positions are stored relative to a local origin (``origin_m``) so that f32 keeps
 import numpy as np
 
 from taichi_mex.backend import real_np_dtype, ti
+from taichi_mex.core.reduce import BLOCK
 
 # phase codes: everything >= SOLID acts as a boundary for the fluid
 FLUID = 0
@@ -165,6 +166,10 @@ class FluidIndex:
         #: all live particles: the solvers sum per-particle terms over this range (zero off
         #: the list), so their sums, and with them every iteration count, round as before
         self.total = ti.field(ti.i32, shape=())
+        #: the list's entries for particles [b BLOCK, (b + 1) BLOCK) are
+        #: index[block_start[b] .. block_start[b + 1]): a solver sums its rows block by block
+        #: in one pass over the list, grouped exactly as a BlockSum over all live particles
+        self.block_start = ti.field(ti.i32, shape=state.capacity // BLOCK + 2)
         self.n = 0
 
     @ti.kernel
@@ -173,10 +178,13 @@ class FluidIndex:
         count = 0
         ti.loop_config(serialize=True)  # in order: the solvers' block sums stay deterministic
         for i in range(n):
+            if i % BLOCK == 0:
+                self.block_start[i // BLOCK] = count
             ph = self.state.phase[i]
             if ph == FLUID or (ti.static(self.with_inlet) and ph == INLET):
                 self.index[count] = i
                 count += 1
+        self.block_start[(n + BLOCK - 1) // BLOCK] = count
         return count
 
     def update(self) -> int:
