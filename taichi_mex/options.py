@@ -494,6 +494,17 @@ class DFSPHOptions:
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",
                                      check=Range(1, 10**7, integer=True))
+    stokes_surface_traction: bool = opt(
+        True, help="coupled solve: a free surface takes no viscous traction (the viscous term's "
+        "boundary part written as the pressure's is, physics/stokes.py); off: the viscous sum "
+        "over the neighbours a surface particle has", check=Flag(),
+        flag="--no-surface-traction", const=False)
+    stokes_density_source: str = opt(
+        "summation", help="coupled solve: what the continuity rows remove besides divergence: "
+        "'summation', the compression the kernel sum shows, min(1 - rho / rho0, 0) / dt; "
+        "'none', nothing (divergence-free steps). The kernel sum also reads a stretched "
+        "arrangement as compressed (validation/extension: +6 % at a Hencky strain of 0.36)",
+        check=OneOf("summation", "none"), flag="--density-source")
     stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers of the 'split' solve "
                                         "(no cited source; 'coupled' needs none)",
                                         factory=DFSPHStabilisers)

@@ -30,7 +30,7 @@ def pygcd_example(name: str) -> Path:
 #:   python -m pytest -m validation                        # validation tier
 VALIDATION_FILES = {"test_dfsph.py", "test_edac.py", "test_thermal.py", "test_tension.py", "test_outputs.py",
                     "test_print.py", "test_stability.py", "test_dam_break.py", "test_pairing.py",
-                    "test_idle.py", "test_stokes.py"}
+                    "test_idle.py", "test_stokes.py", "test_extension.py"}
 
 
 def pytest_collection_modifyitems(config, items):

@@ -58,12 +58,12 @@ def test_squeeze_film_solution_keeps_the_mirror_symmetry():
 
 def test_coarse_squeeze_film_force_stays_where_measured():
     """The coarse film (4 layers, R = 2.5 h) is not yet within the issue's 5 %: its measured
-    ratio is recorded here so that a change of the operators shows (validation/squeeze_film has
-    the resolution study)."""
+    ratio (1.30 with the free surface's traction, 1.52 without) is recorded here so that a
+    change of the operators shows (validation/squeeze_film has the resolution study)."""
     sim = _film(1000.0)
     _, _, _, force = _solve(sim)
     ratio = force[2] / stefan_force_n(1000.0, SPEED, 0.5e-3, 0.2e-3)
-    assert 1.3 < ratio < 1.7
+    assert 1.2 < ratio < 1.4
 
 
 def test_an_unconverged_coupled_step_stops_the_run():

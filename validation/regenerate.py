@@ -55,6 +55,13 @@ def read_stability(out: Path) -> list[dict]:
     return json.loads((out / "stability.json").read_text())
 
 
+def read_bench_collapse(out: Path) -> list[dict]:
+    """Our row, then SPlisHSPlasH's (bench collapse), the latter with SPlisHSPlasH / ours."""
+    result = json.loads((out / "bench.json").read_text())
+    rows = [dict(result["ours"])] + ([dict(result["splishsplash"])] if result.get("splishsplash") else [])
+    return [{**r, "label": r["code"]} for r in rows]
+
+
 def read_bench(out: Path) -> list[dict]:
     """Our row, then PySPH's runs of the same command (OpenMP, one core), each with ours / it."""
     result = json.loads((out / "bench.json").read_text())
@@ -126,6 +133,21 @@ class Case:
     columns: list
     read: object = read_summary
     rows: list = field(default_factory=list)
+    #: the README folder under validation/ (default: the case's name) and the table's tag in
+    #: its markers (<!-- table:begin:TAG -->), for a second table in one README
+    folder: str | None = None
+    tag: str = ""
+
+
+def strain_ratio(strain):
+    """The extension's mid radius over R0 exp(-e t / 2) at the sample nearest a strain."""
+    def cell(r):
+        t = r.get("t_s") or []
+        if not t or r["strain_rate_1_s"] * t[-1] < strain - 1e-6:
+            return ""
+        k = min(range(len(t)), key=lambda i: abs(r["strain_rate_1_s"] * t[i] - strain))
+        return f"{r['mid_radius_ratio'][k] / r['reference_ratio'][k]:.3f}"
+    return cell
 
 
 def scene(name, *args):
@@ -230,6 +252,22 @@ CASES = {
          ("M particle-steps per CPU-s", lambda r: f"{r['particles'] * r['steps'] / r['cpu_s'] / 1e6:.3f}"),
          ("ours / PySPH", num("ratio", "{:.1f}x"))],
         read=read_bench),
+    "peer_collapse": Case(
+        "the viscous collapse (4 mm x 4 mm cylinder, 1 Pa s, 1000 kg/m^3, no-slip plate), ours "
+        "against SPlisHSPlasH 2.19 (DFSPH, Weiler et al. 2018 viscosity, Akinci boundaries, same "
+        "particles), time to solution and Huppert's coefficient, one after the other in one command",
+        [("collapse", ["bench", "collapse", "--json", "{out}/bench.json"])],
+        [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8, "--until", 0.1,
+                                      "--json", "{out}/bench.json"])],
+        [("code", lambda r: r["code"] + (" **(stopped)**" if r.get("stopped") else "")),
+         ("particles", num("particles")), ("steps", num("steps")),
+         ("simulated s", num("simulated_s", "{:.3g}")),
+         ("wall s", num("wall_s", "{:.1f}")), ("CPU s", num("cpu_s", "{:.1f}")),
+         ("other processes' CPU s", num("others_cpu_s", "{:.1f}")),
+         ("Huppert K^(1/8) ratio", num("huppert_coefficient_ratio", "{:.3f}")),
+         ("radius ratio, second half", num("huppert_radius_ratio_late", "{:.3f}")),
+         ("SPlisHSPlasH / ours wall", num("ratio", "{:.1f}x"))],
+        read=read_bench_collapse, folder="peer", tag="collapse"),
     "blocks": Case(
         "the seed paper's 3 x 3 block (paper_block_3x3.gcode, 0.4 mm layers), DFSPH, the whole 2.23 s",
         [(f"{res}, {'unscaled' if off else 'auto'}",
@@ -267,6 +305,19 @@ CASES = {
          ("rms error / u_max", pct("profile_error_rms")),
          ("GMRES iterations", num("stokes_iterations")),
          ("converged", lambda r: str(r.get("stokes_converged", "")))]),
+    "extension": Case(
+        "a PLA filament (1000 Pa s, R0 = 0.5 mm) whose end pieces carry the uniaxial field "
+        "e (x, -y/2, -z/2), e = 1/s, to a Hencky strain of 0.5, coupled solve: mid radius "
+        "against R0 exp(-e t / 2), pressure against -mu e",
+        [(f"{dx} mm ({0.5 / dx:.0f} per radius), source {source}",
+          scene("extension", "--spacing-mm", dx, "--density-source", source))
+         for dx, source in ((0.125, "none"), (0.1, "none"))],
+        [("0.125 mm, strain 0.1", scene("extension", "--spacing-mm", 0.125, "--strain", 0.1))],
+        COMMON + [(f"mid R / exact at strain {e}", strain_ratio(e)) for e in (0.1, 0.2, 0.3, 0.4, 0.5)]
+        + [("mid pressure / (-mu e), first sample", lambda r: f"{r['mid_pressure_pa'][1] / (-r['viscosity_pa_s'] * r['strain_rate_1_s']):.2f}"
+            if len(r.get("mid_pressure_pa", [])) > 1 else ""),
+           ("GMRES per step", num("stokes_iterations_per_step")),
+           ("particles lost", num("particles_lost"))]),
     "mesostructure": Case(
         "pairing and voids in the single bead's section (standard spacing, whole bead)",
         [(f"standard, {v}", bead("--resolution", "standard", "--viscosity-scale", v))
@@ -415,14 +466,15 @@ def machine() -> str:
     return f"{platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores"
 
 
-def rewrite(name: str, block: str) -> Path:
+def rewrite(name: str, block: str, tag: str = "") -> Path:
     path = HERE / name / "README.md"
     text = path.read_text()
-    if BEGIN not in text or END not in text:
-        raise SystemExit(f"{path} has no {BEGIN} ... {END} markers")
-    head, rest = text.split(BEGIN, 1)
-    _, tail = rest.split(END, 1)
-    path.write_text(f"{head}{BEGIN}\n{block}\n{END}{tail}")
+    begin, end = (BEGIN, END) if not tag else (BEGIN.replace(" -->", f":{tag} -->"), END.replace(" -->", f":{tag} -->"))
+    if begin not in text or end not in text:
+        raise SystemExit(f"{path} has no {begin} ... {end} markers")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(f"{head}{begin}\n{block}\n{end}{tail}")
     return path
 
 
@@ -463,10 +515,10 @@ def main(argv=None) -> int:
     block = "\n".join([stamp, "", "```bash", *commands, "```", "", markdown(case, rows)])
     print(block)
     if all("failure" in r for r in rows):  # keep the last good table
-        print(f"every command failed; validation/{args.case}/README.md left as it was "
+        print(f"every command failed; validation/{case.folder or args.case}/README.md left as it was "
               f"(logs: log.txt in each run folder{'' if args.out else ', pass --out DIR to keep them'})")
         return 1
-    print(f"wrote {rewrite(args.case, block)}")
+    print(f"wrote {rewrite(case.folder or args.case, block, case.tag)}")
     return 0 if all("failure" not in r for r in rows) else 1
 
 

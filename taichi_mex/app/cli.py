@@ -185,12 +185,17 @@ def run_bench(argv: list[str]) -> int:
         from taichi_mex.app.peer import main as peer_main
 
         return peer_main(argv[1:], parser_class=Parser)
+    if argv and argv[0] == "collapse":  # not in `bench all`: SPlisHSPlasH takes minutes
+        from taichi_mex.app.peer_splishsplash import main as collapse_main
+
+        return collapse_main(argv[1:], parser_class=Parser)
 
     p = Parser(prog="python -m taichi_mex bench",
                description="Measure particle-steps per second (and the toolpath sampler).")
     p.add_argument("which", nargs="?", default="all",
-                   choices=["all", "print", "edac", "toolpath", "dam-break"],
-                   help="dam-break: ours against PySPH (optional 'peer' extra); see --help there")
+                   choices=["all", "print", "edac", "toolpath", "dam-break", "collapse"],
+                   help="dam-break: ours against PySPH (optional 'peer' extra); collapse: ours "
+                        "against SPlisHSPlasH (optional 'splishsplash' extra); see --help there")
     p.add_argument("--particles", type=int, default=100_000, help="size of the EDAC block")
     p.add_argument("--measure", type=float, default=None,
                    help="simulated seconds to time (default: per benchmark)")

@@ -334,7 +334,11 @@ class Simulation:
 
     # ----------------------------------------------------------------- stepping hooks
     def move_boundaries(self, t: float) -> int:
-        """Move nozzle and inlet column to time t; returns the particles released as melt."""
+        """Move nozzle and inlet column, and any walls the scene moves itself, to time t;
+        returns the particles released as melt."""
+        move_walls = getattr(self.scene, "move_walls", None)
+        if move_walls is not None:
+            move_walls(self, t)
         if self.inlet is None or self._inlet_retired:
             return 0
         released = self.inlet.advance(t)
@@ -366,7 +370,9 @@ class Simulation:
 
     def boundary_speed(self) -> float:
         """Fastest moving wall (the nozzle and the melt sliding down its bore), m/s."""
-        return self.inlet.speed if self.inlet is not None and not self._inlet_retired else 0.0
+        speed = self.inlet.speed if self.inlet is not None and not self._inlet_retired else 0.0
+        wall_speed = getattr(self.scene, "wall_speed", None)
+        return max(speed, wall_speed()) if wall_speed is not None else speed
 
     def extra_dt_limits(self) -> dict:
         """Time-step limits of optional physics (heat), s."""

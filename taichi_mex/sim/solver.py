@@ -154,7 +154,8 @@ class DFSPHSolver:
                                         self.dfsph.V0, run.spacing_m, self.fluid,
                                         o.stokes_restart,
                                         o.stokes_momentum_tolerance, o.stokes_density_tolerance,
-                                        o.stokes_max_iterations)
+                                        o.stokes_max_iterations, o.stokes_surface_traction,
+                                        o.stokes_density_source)
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
