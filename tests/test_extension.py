@@ -59,14 +59,14 @@ def test_melt_starts_with_the_uniaxial_field_and_trouton_tension():
 
 def test_divergence_free_steps_keep_the_filament_on_trouton():
     """Stretched to a Hencky strain of 0.3 with divergence-free steps (no density source), at
-    4 particles per radius: the mid radius within the issue's 3 % of R0 exp(-e t / 2). The
-    kernel-sum source reads the stretched arrangement as compressed and dilates the melt
-    (validation/extension), so this run switches it off."""
+    4 particles per radius: the mid radius within 1 % of R0 exp(-e t / 2) (measured 0.4 %; the
+    issue asks 3 %; with the kernel-sum source it is 1.2 % off at 0.3 and 3.7 % at 0.4,
+    validation/extension)."""
     spec = RunSpec.create("extension", changes={"spacing_mm": 0.125, "strain": 0.3,
                                                 "run.dfsph.stokes_density_source": "none",
                                                 "run.progress": False, "run.snapshots": False})
     sim = Simulation.from_spec(spec)
     out = sim.run()
     assert out["particles_lost"] == 0
-    assert abs(out["mid_radius_error_max"]) < 0.03
+    assert abs(out["mid_radius_error_max"]) < 0.01
 
