@@ -221,28 +221,15 @@ class PCG:
     def _begin_rows(self, n, b: ti.template(), from_b: ti.template(), mode: ti.template(), tol,
                     tol_max, rel2, scale, min_iter, max_iter):
         for blk in range(self._blocks()):
-            s_rz = ti.cast(0.0, ti.f64)
-            s_res = ti.cast(0.0, ti.f64)
-            s_max = ti.cast(0.0, ti.f64)
+            sums = ti.Vector.zero(ti.f64, 3)
             for slot in range(self.rows.block_start[blk], self.rows.block_start[blk + 1]):
                 i = self.rows.index[slot]
                 r = self.r[i]
                 if ti.static(from_b):
                     r = b[i] - self.Ap[i]
                     self.r[i] = r
-                z = self.problem.precondition(i, r, mode)
-                self.z[i] = z
-                self.p[i] = z
-                rz = self.dot(r, z)
-                t = self.problem.residual_term(i, r, mode)
-                self.term_rz[i] = rz
-                self.term[i] = t
-                s_rz += ti.cast(rz, ti.f64)
-                s_res += ti.cast(t, ti.f64)
-                s_max = ti.max(s_max, ti.cast(t, ti.f64))
-            self.part_a[blk] = s_rz
-            self.part_b[blk] = s_res
-            self.part_max[blk] = s_max
+                self.p[i] = self._measure_row(i, r, mode, sums)
+            self._store_parts(blk, sums)
         ti.loop_config(serialize=True)
         for _ in range(1):
             rz = self._total(self.part_a)
@@ -253,6 +240,27 @@ class PCG:
                 self.s.res_max[None] = self._largest(self.part_max)
             if self._met(tol, tol_max, rel2, scale, min_iter, max_iter, rz):
                 self.s.done[None] = 1
+
+    @ti.func
+    def _measure_row(self, i, r, mode: ti.template(), sums: ti.template()):
+        """z = M^-1 r of row i (returned), its r.z and stopping term, kept per particle and
+        added to the block's sums (r.z, the terms, the largest term)."""
+        z = self.problem.precondition(i, r, mode)
+        self.z[i] = z
+        rz = self.dot(r, z)
+        t = self.problem.residual_term(i, r, mode)
+        self.term_rz[i] = rz
+        self.term[i] = t
+        sums[0] += ti.cast(rz, ti.f64)
+        sums[1] += ti.cast(t, ti.f64)
+        sums[2] = ti.max(sums[2], ti.cast(t, ti.f64))
+        return z
+
+    @ti.func
+    def _store_parts(self, blk, sums):
+        self.part_a[blk] = sums[0]
+        self.part_b[blk] = sums[1]
+        self.part_max[blk] = sums[2]
 
     @ti.func
     def _blocks(self):
@@ -302,9 +310,7 @@ class PCG:
                     self.s.alpha[None] = self.s.rz[None] / pAp if pAp > 0.0 else 0.0
                     self.s.iterations[None] += 1
             for blk in range(self._blocks()):
-                s_rz = ti.cast(0.0, ti.f64)
-                s_res = ti.cast(0.0, ti.f64)
-                s_max = ti.cast(0.0, ti.f64)
+                sums = ti.Vector.zero(ti.f64, 3)
                 if self.s.done[None] == 0:
                     a = ti.cast(self.s.alpha[None], float)
                     for slot in range(self.rows.block_start[blk], self.rows.block_start[blk + 1]):
@@ -312,18 +318,8 @@ class PCG:
                         self.problem.advance(i, a, mode)
                         r = self.r[i] - a * self.Ap[i]
                         self.r[i] = r
-                        z = self.problem.precondition(i, r, mode)
-                        self.z[i] = z
-                        t = self.problem.residual_term(i, r, mode)
-                        rz = self.dot(r, z)
-                        self.term[i] = t
-                        self.term_rz[i] = rz
-                        s_rz += ti.cast(rz, ti.f64)
-                        s_res += ti.cast(t, ti.f64)
-                        s_max = ti.max(s_max, ti.cast(t, ti.f64))
-                self.part_a[blk] = s_rz
-                self.part_b[blk] = s_res
-                self.part_max[blk] = s_max
+                        self._measure_row(i, r, mode, sums)
+                self._store_parts(blk, sums)
             ti.loop_config(serialize=True)
             for _ in range(1):
                 if self.s.done[None] == 0:
