@@ -81,9 +81,8 @@ class ExtensionScene:
         self._next = 0
         self.dx = dx
         self.half_span = half + grip
-        mid = np.abs(melt[:, 0]) < 3.0 * dx
         # at rest: no pressure yet
-        self.start_section = (math.sqrt(2.0 * float(np.mean(np.sum(melt[mid, 1:] ** 2, axis=1)))), 0.0)
+        self.start_section = (self._mid_radius(melt, self._middle(melt)), 0.0)
         return ScenePlan(
             name=self.name,
             domain_lo_m=np.array([-reach_x, -reach_r, -reach_r]),
@@ -120,12 +119,20 @@ class ExtensionScene:
     def mid_section(self, sim) -> tuple[float, float]:
         """(sqrt(2 <r^2>), mean pressure) of the melt within three spacings of the centre plane."""
         x = sim.state.numpy("position", FLUID)
-        mid = np.abs(x[:, 0]) < 3.0 * self.dx
+        mid = self._middle(x)
         if not mid.any():
             return float("nan"), float("nan")
-        r2 = x[mid, 1] ** 2 + x[mid, 2] ** 2
         p = sim.state.numpy("pressure", FLUID)[mid]
-        return math.sqrt(2.0 * float(np.mean(r2))), float(np.mean(p))
+        return self._mid_radius(x, mid), float(np.mean(p))
+
+    def _middle(self, x_m: np.ndarray) -> np.ndarray:
+        """Melt within three spacings of the centre plane."""
+        return np.abs(x_m[:, 0]) < 3.0 * self.dx
+
+    @staticmethod
+    def _mid_radius(x_m: np.ndarray, mid: np.ndarray) -> float:
+        """sqrt(2 <r^2>): a filled disc's radius from its second moment."""
+        return math.sqrt(2.0 * float(np.mean(x_m[mid, 1] ** 2 + x_m[mid, 2] ** 2)))
 
     def monitor(self, sim, t: float) -> None:
         if not self.history:
