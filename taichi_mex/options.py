@@ -494,6 +494,19 @@ class DFSPHOptions:
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",
                                      check=Range(1, 10**7, integer=True))
+    stokes_preconditioner: str = opt(
+        "block_triangular", help="coupled solve: 'block_triangular' (the pressure from the "
+        "Schur complement's approximation, then the viscous rows solved for it by an inner "
+        "conjugate-gradient solve; flexible GMRES) or 'block_diagonal' (3 x 3 diagonal blocks "
+        "and the Schur approximation; GMRES)", check=OneOf("block_triangular", "block_diagonal"),
+        flag="--stokes-preconditioner")
+    stokes_inner_tolerance: float = opt(
+        0.1, help="coupled solve, block_triangular: the inner viscous solve stops when its "
+        "residual has fallen by this factor (-); it sets the cost, not the answer, which the "
+        "outer tolerances decide", check=Range(0.0, 1.0, lo_open=True, hi_open=True))
+    stokes_inner_max_iterations: int = opt(
+        100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
+        "iterations per outer iteration", check=Range(1, 10**5, integer=True))
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: a free surface takes no viscous traction (the viscous term's "
         "boundary part written as the pressure's is, physics/stokes.py); off: the viscous sum "

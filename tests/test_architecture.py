@@ -111,6 +111,24 @@ def test_every_option_has_a_check_and_a_help():
             assert f.metadata.get("help"), f"{cls.__name__}.{path} has no help"
 
 
+def test_every_help_page_prints_its_option_help_as_written():
+    """argparse formats help text with %; an option's prose ('+6 % at ...') must come out
+    verbatim, not as a dump of the argument's internals."""
+    import argparse
+
+    from taichi_mex.app.parsing import add_spec_flags
+    from taichi_mex.spec import scene_entries
+
+    for scene in scene_entries():
+        parser = argparse.ArgumentParser(prog="test")
+        add_spec_flags(parser, scene)
+        page = parser.format_help()
+        assert "option_strings" not in page, scene
+    parser = argparse.ArgumentParser(prog="test")
+    add_spec_flags(parser, "print")
+    assert "+6 % at a Hencky strain" in " ".join(parser.format_help().split())
+
+
 def test_one_declaration_reaches_the_command_line_sweeps_and_config(tmp_path, monkeypatch):
     """Add one option to a scene's options class: its flag, its sweep name and its place in
     config.json follow without any other edit."""

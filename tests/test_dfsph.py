@@ -48,6 +48,7 @@ def test_hydrostatic_pressure_dfsph(tmp_path):
     assert s["compression_error_mean"] < 1e-3 and s["density_error_mean"] < 1e-3
 
 
+@pytest.mark.slow  # ~1 min; validation/shear has the figures
 def test_shear_start_up_matches_erfc():
     """Stokes' first problem at 10 spacings per penetration depth: u within 6 % of U."""
     scene = ShearStartScene(length_mm=6, height_mm=3, plate_speed_m_s=0.01, until_s=0.01)

@@ -22,6 +22,7 @@ def _run_opts(**kw):
     return RunOptions(**base)
 
 
+@pytest.mark.slow  # ~1.5 min; the EDAC baseline keeps the dam break and the sweep in the default run
 def test_hydrostatic_column_settles_to_rho_g_h(tmp_path):
     """Slab-mean pressure at depth matches rho g (H - z) within 5 % of rho g H, its slope
     rho g within 10 %; nothing leaks."""

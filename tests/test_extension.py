@@ -5,6 +5,7 @@ a strain of 0.5 against R0 exp(-e t / 2): validation/extension."""
 import math
 
 import numpy as np
+import pytest
 
 from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.scenes.extension import extension_field
@@ -35,6 +36,17 @@ def test_end_pieces_follow_the_uniaxial_field_exactly():
     assert sim.boundary_speed() == sim.scene.wall_speed() > 0.0
 
 
+def test_the_estimate_counts_the_scenes_own_largest_step():
+    """The scene allows steps of 0.01 / rate; the estimate printed before a run uses the
+    same bounds as the solver (it once used the option's 1 ms and said 500 steps where the
+    run took 75; now 95, from the CFL bound on the end pieces' speed)."""
+    sim = Simulation.from_spec(RunSpec.create("extension", changes={"run.progress": False}))
+    e = sim.estimate
+    assert e["dt_limits_s"]["max"] == pytest.approx(0.01 / RATE)
+    assert e["steps_estimate"] == math.ceil(e["simulated_time_s"] / min(e["dt_limits_s"].values()))
+    assert 75 / 2 <= e["steps_estimate"] <= 2 * 75
+
+
 def test_melt_starts_with_the_uniaxial_field_and_trouton_tension():
     """One coupled solve with the end pieces moving: the melt between them takes the uniaxial
     field (measured at 5 particles per radius: median axial and radial rates 1.6 % above e and
@@ -57,6 +69,7 @@ def test_melt_starts_with_the_uniaxial_field_and_trouton_tension():
     assert 0.9 < p / (-sim.material.viscosity_pa_s * RATE) < 1.15
 
 
+@pytest.mark.slow  # ~2 min: 60 coupled steps; validation/extension has the figures
 def test_divergence_free_steps_keep_the_filament_on_trouton():
     """Stretched to a Hencky strain of 0.3 with divergence-free steps (no density source), at
     4 particles per radius: the mid radius within 1 % of R0 exp(-e t / 2) (measured 0.4 %; the

@@ -126,7 +126,8 @@ def test_resume_after_ctrl_c_reaches_the_uninterrupted_end(tmp_path):
         assert abs(end[key] - whole[key]) < 1e3 * dx
 
 
-@pytest.mark.parametrize("name", materials.known())
+@pytest.mark.parametrize("name", [n if n == "pla" else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in materials.known()])  # PLA is every other test's melt
 def test_every_material_loads_and_runs_a_short_bead(tmp_path, name):
     values, sources = materials.read(name)
     assert set(values) - {"name"} <= set(sources), "every property needs a source"

@@ -108,6 +108,7 @@ def test_scene_too_large_for_memory_is_refused(tmp_path, capsys):
     assert "GiB" in err and "coarser" in err and "Traceback" not in err
 
 
+@pytest.mark.slow  # tests/test_outputs.py resumes an interrupted run in the default tier
 def test_ctrl_c_stops_cleanly_and_keeps_frames(tmp_path):
     cmd = [sys.executable, "-m", "taichi_mex", str(bundled.gcode_path("paper_bead")), "--preset",
            "paper", "--resolution", "0.06", "--output-every", "0.001", "--out", str(tmp_path),

@@ -56,6 +56,22 @@ def test_squeeze_film_solution_keeps_the_mirror_symmetry():
     assert np.abs(v[:, 1:] - v[mirror, 1:]).max() < 1e-3 * SPEED
 
 
+def test_both_preconditioners_reach_the_same_solution():
+    """The block-triangular preconditioner (inner viscous solve, flexible GMRES) changes the
+    cost, not the answer: the film's velocities and force agree with the block-diagonal
+    one's to the solve's tolerance, in under half its outer iterations (measured on this
+    film: 120 against 560, with 640 inner iterations in all)."""
+    res = {}
+    for name in ("block_triangular", "block_diagonal"):
+        res[name] = _solve(_film(1000.0, **{"run.dfsph.stokes_preconditioner": name}))
+    (rt, _, vt, ft), (rd, _, vd, fd) = res["block_triangular"], res["block_diagonal"]
+    assert rt.converged and rd.converged
+    assert rt.inner_iterations > 0 and rd.inner_iterations == 0
+    assert np.abs(vt - vd).max() < 1e-3 * SPEED
+    assert ft[2] == pytest.approx(fd[2], rel=1e-4)
+    assert rt.iterations < 0.5 * rd.iterations
+
+
 def test_coarse_squeeze_film_force_stays_where_measured():
     """The coarse film (4 layers, R = 2.5 h) is not yet within the issue's 5 %: its measured
     ratio (1.30 with the free surface's traction, 1.52 without) is recorded here so that a
@@ -111,7 +127,7 @@ def test_the_validation_scenes_refuse_the_split_solve_up_front():
 def test_bore_flow_profile_is_poiseuilles():
     """Melt falling through the 0.4 mm bore, 4 particles per radius: the ring-averaged axial
     velocity of the middle third within the issue's 3 % of u_max of Hagen-Poiseuille's
-    (measured 1.7 %)."""
+    (measured 1.4 %)."""
     spec = RunSpec.create("bore-flow", changes={"spacing_mm": 0.05, "run.progress": False})
     sim = Simulation.from_spec(spec)
     sim.build()

@@ -297,13 +297,18 @@ CASES = {
         "PLA (1000 Pa s) falling under gravity through the 0.4 mm nozzle bore, ends open, one "
         "coupled solve: axial velocity of the middle third against Hagen-Poiseuille",
         [(f"{dx} mm ({0.2 / dx:.0f} per radius)", scene("bore-flow", "--spacing-mm", dx))
-         for dx in (0.05, 0.033, 0.025)],
+         for dx in (0.05, 0.033, 0.025)]
+        + [(f"{dx} mm, block_diagonal", scene("bore-flow", "--spacing-mm", dx,
+                                              "--stokes-preconditioner", "block_diagonal"))
+           for dx in (0.05, 0.033)],
         [("0.05 mm", scene("bore-flow", "--spacing-mm", 0.05))],
         [("particles", num("particles_active")),
          ("centre u / Poiseuille", num("centre_ratio", "{:.3f}")),
          ("max error / u_max", pct("profile_error_max")),
          ("rms error / u_max", pct("profile_error_rms")),
          ("GMRES iterations", num("stokes_iterations")),
+         ("inner CG iterations", num("stokes_inner_iterations")),
+         ("solve s (with compile)", num("solve_wall_s", "{:.0f}")),
          ("converged", lambda r: str(r.get("stokes_converged", "")))]),
     "extension": Case(
         "a PLA filament (1000 Pa s, R0 = 0.5 mm) whose end pieces carry the uniaxial field "

@@ -67,7 +67,8 @@ def add_spec_flags(parser: argparse.ArgumentParser, scene: str) -> set[str]:
         if not flags:
             continue
         group = next(groups[p] for p, _ in _GROUPS if path.startswith(p))
-        help_text = f.metadata.get("flag_help") or f.metadata["help"]
+        # argparse formats help with %: option help is prose ("+6 % at ...")
+        help_text = (f.metadata.get("flag_help") or f.metadata["help"]).replace("%", "%%")
         const = f.metadata.get("const", MISSING)
         if const is not MISSING:
             group.add_argument(*flags, dest=path, action="store_const", const=const,

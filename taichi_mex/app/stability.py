@@ -33,19 +33,21 @@ class Case:
         self.params = {**BASE, **self.changes}
 
 
+# slow: not in the default test run, which keeps the extremes of viscosity, speed and step
+# and the refusals (python -m pytest -m slow runs the rest)
 CASES = [
-    Case("baseline", {}),
+    Case("baseline", {}, slow=True),
     Case("viscosity 0.1 Pa s", {"viscosity_pa_s": 0.1}),
     Case("viscosity 1e4 Pa s", {"viscosity_pa_s": 1e4}),
     Case("speed 10 mm/s", {"speed_mm_s": 10.0}, slow=True),
     Case("speed 200 mm/s", {"speed_mm_s": 200.0}),
-    Case("layer 0.25 D", {"layer_height_mm": 0.1}),
-    Case("layer 1.0 D", {"layer_height_mm": 0.4}),
-    Case("4 particles per D", {"spacing_mm": 0.1}),
+    Case("layer 0.25 D", {"layer_height_mm": 0.1}, slow=True),
+    Case("layer 1.0 D", {"layer_height_mm": 0.4}, slow=True),
+    Case("4 particles per D", {"spacing_mm": 0.1}, slow=True),
     Case("4 per D, layer 0.25 D", {"spacing_mm": 0.1, "layer_height_mm": 0.1}),
     Case("16 particles per D", {"spacing_mm": 0.025}, slow=True),
-    Case("f64", {"precision": "f64"}),
-    Case("dt factor 2", {"dt_factor": 2.0}),
+    Case("f64", {"precision": "f64"}, slow=True),
+    Case("dt factor 2", {"dt_factor": 2.0}, slow=True),
     Case("dt factor 4", {"dt_factor": 4.0}),
     Case("viscosity 1e4, 200 mm/s, f64", {"viscosity_pa_s": 1e4, "speed_mm_s": 200.0,
                                           "precision": "f64"}, slow=True),

@@ -229,7 +229,10 @@ class Simulation:
             if self.plan.thermal_dt_s is not None:
                 limits["thermal"] = self.plan.thermal_dt_s
         else:
-            limits = {"cfl": min(run.dfsph.cfl * 0.4 * run.spacing_m / max(v, 1e-9), run.dfsph.max_dt_s)}
+            # the same bounds as the solver's time_step: CFL on the scene's speed, and the
+            # scene's own largest step where it sets one (slow creeping scenes), else the option's
+            limits = {"cfl": run.dfsph.cfl * 0.4 * run.spacing_m / max(v, 1e-9),
+                      "max": self.plan.max_dt_s or run.dfsph.max_dt_s}
         return min(limits.values()), limits
 
     def describe_estimate(self) -> str:

@@ -155,7 +155,8 @@ class DFSPHSolver:
                                         o.stokes_restart,
                                         o.stokes_momentum_tolerance, o.stokes_density_tolerance,
                                         o.stokes_max_iterations, o.stokes_surface_traction,
-                                        o.stokes_density_source)
+                                        o.stokes_density_source, o.stokes_preconditioner,
+                                        o.stokes_inner_tolerance, o.stokes_inner_max_iterations)
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
@@ -174,7 +175,7 @@ class DFSPHSolver:
         self.saved_k = ti.Vector.field(2, float, shape=cap)
         self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
         self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0,
-                       "stokes_iterations": 0}
+                       "stokes_iterations": 0, "stokes_inner_iterations": 0}
         self.worst = {"density_error": 0.0, "viscosity_residual": 0.0,
                       "stokes_momentum_residual": 0.0, "stokes_density_error": 0.0}
         # the densest melt at the start of every step: the state a step leaves, at any time,
@@ -331,6 +332,7 @@ class DFSPHSolver:
             with h.phase("coupled solve"):
                 res = self.stokes.solve(dt, d.kappa, self.gravity)
             self.totals["stokes_iterations"] += res.iterations
+            self.totals["stokes_inner_iterations"] += res.inner_iterations
             if res.converged:
                 break
             self.unconverged["coupled"] += 1
@@ -418,6 +420,8 @@ class DFSPHSolver:
             "compression_corrections": self.corrections,
             "droplets_ejected": self.ejected,
             "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
+            # the inner viscous iterations of the block-triangular preconditioner
+            "stokes_inner_iterations_per_step": self.totals["stokes_inner_iterations"] / steps,
             "stokes_momentum_residual_worst": self.worst["stokes_momentum_residual"],
             "stokes_density_error_worst": self.worst["stokes_density_error"],
             "speed_clamped_particle_steps": self.clamped,
