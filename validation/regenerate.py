@@ -21,6 +21,7 @@ import json
 import math
 import os
 import platform
+import re
 import shlex
 import subprocess
 import sys
@@ -158,6 +159,38 @@ def bead(*args):
     return [*map(str, args), *QUIET, "--out", "{out}"]
 
 
+def strand(gap_mm, width_mm, *args):
+    """A single bead: the bundled one (0.2 mm gap, 0.45 mm width) or one of the generated
+    lines in validation/strands/gcode, coupled solve without the surface traction."""
+    gcode = ("single_bead.gcode" if (gap_mm, width_mm) == (0.2, 0.45)
+             else f"validation/strands/gcode/gap{gap_mm:.2f}_width{width_mm:.2f}.gcode")
+    return [gcode, "--creeping-solve", "coupled", "--no-surface-traction", *map(str, args),
+            *QUIET, "--out", "{out}"]
+
+
+#: (gap mm, line width mm, resolution) of the coupled strands; at a 0.1 mm gap draft's
+#: 0.067 mm is refused (under 2 particles per layer): 0.05 mm is the coarsest allowed
+STRANDS = [(0.2, 0.45, "draft"), (0.2, 0.45, "standard"), (0.1, 0.4, 0.05),
+           (0.1, 0.6, 0.05), (0.15, 0.5, "draft"), (0.2, 0.6, "draft"), (0.2, 0.7, "draft")]
+
+
+def _strand_of(r) -> tuple[float, float]:
+    m = re.match(r"gap ([0-9.]+), width ([0-9.]+)", r.get("label", ""))
+    return (float(m.group(1)), float(m.group(2))) if m else (BEAD_GAP_MM, 0.45)
+
+
+def _strand_area(r) -> float:
+    g, w = _strand_of(r)
+    return (w - g) * g + math.pi * g * g / 4.0
+
+
+STRAND = [("material area / commanded", ratio_to("bead_material_area_mm2", _strand_area, "{:.4f}")),
+          ("section W mm / rounded rectangle", ratio_to(
+              "bead_width_mm", lambda r: slicer_width_mm(_strand_area(r), _strand_of(r)[0]))),
+          ("section H mm / gap", ratio_to("bead_height_mm", lambda r: _strand_of(r)[0])),
+          ("p99 W / H mm", lambda r: f"{r['bead_width_p99_mm']:.3f} / {r['bead_height_p99_mm']:.3f}"
+           if r.get("bead_width_p99_mm") else "")]
+
 HYDRO = ("--width-mm", 8, "--height-mm", 12)
 SHEAR = ("--length-mm", 6, "--height-mm", 3, "--plate-speed", 0.01, "--until", 0.01)
 COLLAPSE = ("--radius-mm", 4, "--height-mm", 4, "--viscosity", 10, "--density", 1000)
@@ -213,6 +246,19 @@ CASES = {
          for res, off in (("draft", False), ("standard", False), ("standard", True), ("fine", False))],
         [("0.1 mm unscaled", bead("--resolution", 0.1, "--viscosity-scale", "off"))],
         COMMON + BEAD + DENSITY),
+    "strands_coupled": Case(
+        "single beads of six gap / line-width combinations under the 0.4 mm nozzle (60 mm/s, "
+        "PLA 1000 Pa s), coupled solve without the free surface's traction: section against "
+        "the commanded area and the slicer's rounded rectangle",
+        [(f"gap {g:.2f}, width {w:.2f}, {res}", strand(g, w, "--resolution", res))
+         for g, w, res in STRANDS],
+        [("gap 0.20, width 0.45, 0.1", strand(0.2, 0.45, "--resolution", 0.1))],
+        COMMON + STRAND + DENSITY[:2] + [
+            ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
+             f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
+            ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
+             f"{r.get('time_step_halvings', '')}")],
+        folder="strands", tag="coupled"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "
         "bead's shape error relative to the finest run",
