@@ -35,7 +35,7 @@ nu_i / dt + alpha_i / dt^2 (alpha: DFSPH's diagonal factor). For u, by default
 with flexible GMRES outside (see "block-triangular preconditioner" below); or
 (``block_diagonal``) the 3x3 diagonal blocks of the momentum rows alone, which leave the
 viscous rows' conditioning to GMRES: the bore flow at 8 particles per radius did not converge
-in 20,000 iterations with it and converges in 2,160 with the inner solve.
+in 20,000 iterations with it and converges in 1,160 with the inner solve.
 Right preconditioning makes GMRES minimise the true residual; the stop is on what the step
 leaves, measured at each restart: the momentum residual relative to the right-hand side, both
 through the diagonal blocks (so in velocities), and the largest predicted density error
@@ -85,6 +85,15 @@ class StokesResult:
     density_error_mean: float
     #: the block-triangular preconditioner's inner conjugate-gradient iterations, all together
     inner_iterations: int = 0
+    #: wall time of a quasi-static solve (s), its first compilation included (0: not timed)
+    wall_s: float = 0.0
+
+    def figures(self) -> dict:
+        """The solve's figures as a scene's summary reports them."""
+        return {"stokes_iterations": self.iterations, "stokes_converged": self.converged,
+                "stokes_inner_iterations": self.inner_iterations, "solve_wall_s": self.wall_s,
+                "stokes_momentum_residual": self.momentum_residual,
+                "stokes_density_error_max": self.density_error_max}
 
 
 @ti.data_oriented
@@ -95,13 +104,10 @@ class CoupledStokes:
                        "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
-                 spacing_m: float, rows, restart: int = 40,
-                 momentum_tolerance: float = 1e-6, density_tolerance: float = 1e-5,
-                 max_iterations: int = 20000, surface_traction: bool = True,
-                 density_source: str = "summation", preconditioner: str = "block_triangular",
-                 inner_tolerance: float = 0.1, inner_max_iterations: int = 100):
+                 spacing_m: float, rows, opts):
         """viscosity: the melt's MeltViscosity; viscous: the ImplicitViscosity whose pair
-        coefficients L uses; rows: a FluidIndex over the melt."""
+        coefficients L uses; rows: a FluidIndex over the melt; opts: the run's DFSPHOptions
+        (its stokes_* fields)."""
         self.state = state
         self.grid = grid
         self.K = kernel
@@ -113,15 +119,15 @@ class CoupledStokes:
         # momentum rows' is, and GMRES's one norm weighs both alike
         self.dx = float(spacing_m)
         self.rows = rows
-        self.m = int(restart)
-        self.tol_u = float(momentum_tolerance)
-        self.tol_rho = float(density_tolerance)
-        self.max_iterations = int(max_iterations)
-        self.traction = bool(surface_traction)
-        self.summation_source = density_source == "summation"
-        self.flexible = preconditioner == "block_triangular"
-        self.inner_tol = float(inner_tolerance)
-        self.inner_max = int(inner_max_iterations)
+        self.m = int(opts.stokes_restart)
+        self.tol_u = float(opts.stokes_momentum_tolerance)
+        self.tol_rho = float(opts.stokes_density_tolerance)
+        self.max_iterations = int(opts.stokes_max_iterations)
+        self.traction = bool(opts.stokes_surface_traction)
+        self.summation_source = opts.stokes_density_source == "summation"
+        self.flexible = opts.stokes_preconditioner == "block_triangular"
+        self.inner_tol = float(opts.stokes_inner_tolerance)
+        self.inner_max = int(opts.stokes_inner_max_iterations)
         cap = state.capacity
         # free-surface traction (see _surface_setup): per melt particle the corrected gradient's
         # inverse moment matrix, the 3 x 9 map from the velocity gradient to the correction of
@@ -158,7 +164,6 @@ class CoupledStokes:
         self.cg_x, self.cg_r, self.cg_p, self.cg_q, self.cg_z = vec3(), vec3(), vec3(), vec3(), vec3()
         self.kpart = ti.field(ti.f64, shape=inner)  # the preconditioned vector's k
         self.cg_part = ti.field(ti.f64, shape=(2, self.n_blocks))
-        self.inner_iterations = 0
 
     # ------------------------------------------------------------------ operator pieces
     @ti.func
@@ -209,6 +214,12 @@ class CoupledStokes:
             return gV
 
     @ti.func
+    def _square(self, acc: ti.template(), o: ti.template()):
+        """The 3x3 matrix stored row by row in acc[o:o + 9] (the inverse of _flat)."""
+        return ti.Matrix([[acc[o], acc[o + 1], acc[o + 2]], [acc[o + 3], acc[o + 4], acc[o + 5]],
+                          [acc[o + 6], acc[o + 7], acc[o + 8]]])
+
+    @ti.func
     def _flat(self, A):
         return ti.Vector([A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2],
                           A[2, 0], A[2, 1], A[2, 2]], ti.f64)
@@ -253,8 +264,7 @@ class CoupledStokes:
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 48)
             self.grid.for_each_listed(i, self._surface_task, acc)
-            M = ti.Matrix([[acc[0], acc[1], acc[2]], [acc[3], acc[4], acc[5]],
-                           [acc[6], acc[7], acc[8]]])
+            M = self._square(acc, 0)
             Minv = ti.Matrix.identity(ti.f64, 3)
             # a neighbourhood in a plane or on a line has no inverse: left uncorrected
             if ti.abs(M.determinant()) > 1e-6:
@@ -270,9 +280,7 @@ class CoupledStokes:
                     K[a, 3 * a + b] += 2.0 * nu * acc[9 + b]
                     K[a, 3 * b + a] += 2.0 * nu * acc[9 + b]
             self.Kmap[i] = K
-            Aw = ti.Matrix([[acc[39], acc[40], acc[41]], [acc[42], acc[43], acc[44]],
-                            [acc[45], acc[46], acc[47]]])
-            self.surf_rhs[i] = K @ self._flat(Aw @ Minv)
+            self.surf_rhs[i] = K @ self._flat(self._square(acc, 39) @ Minv)
 
     @ti.func
     def _shepard_task(self, b, j, xij, acc: ti.template()):
@@ -287,6 +295,15 @@ class CoupledStokes:
             acc += w * ti.Vector([u[0], u[1], u[2]])
 
     @ti.func
+    def _pressure_pair(self, i, j, gV, gi):
+        """Pair (i, j)'s part of G(k)_i for z's k: k_i gi + k_j (V grad W corrected at j), the
+        second term only from melt (a wall has no k); gi: V grad W corrected at i."""
+        g = self.z[i][3] * gi
+        if self.state.phase[j] == FLUID:
+            g += self.z[j][3] * self._corrected(j, gV)
+        return g
+
+    @ti.func
     def _apply_task(self, i, slot, j, xij, acc: ti.template()):
         """acc[0:3]: L's linear part, acc[3:6]: G(k), acc[6]: D(u) (linear parts)."""
         cF = self.cF[i, slot]
@@ -299,7 +316,7 @@ class CoupledStokes:
             uj = ti.Vector([zj[0], zj[1], zj[2]])
             l = cF * (ui - uj).dot(xij) * xij
             gi = self._corrected(i, gV)
-            g = zi[3] * gi + zj[3] * self._corrected(j, gV)
+            g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
                 acc[d] += l[d]
                 acc[3 + d] += g[d]
@@ -310,7 +327,7 @@ class CoupledStokes:
                 ug = self.ghost[j] / self.shepard[j]
             l = cF * (ui + ug).dot(xij) * xij  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
             gi = self._corrected(i, gV)
-            g = zi[3] * gi
+            g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
                 acc[d] += l[d]
                 acc[3 + d] += g[d]
@@ -376,12 +393,9 @@ class CoupledStokes:
     # particles, 2,600 at 416).
     @ti.func
     def _pressure_task(self, i, slot, j, xij, acc: ti.template()):
-        """G(k)_i of z's k (walls: k_i only), as in _apply_task."""
+        """G(k)_i of z's k."""
         gV = self.V * self.K.F(xij.norm()) * xij
-        g = self.z[i][3] * self._corrected(i, gV)
-        if self.state.phase[j] == FLUID:
-            g += self.z[j][3] * self._corrected(j, gV)
-        acc += g
+        acc += self._pressure_pair(i, j, gV, self._corrected(i, gV))
 
     @ti.func
     def _inner_task(self, i, slot, j, xij, acc: ti.template()):
@@ -467,12 +481,12 @@ class CoupledStokes:
         self._apply(n, self.w)
 
     def _inner_sum(self, n: int, which: int) -> float:
-        nb = (n + self.block - 1) // self.block
-        return float(self.cg_part.to_numpy()[which, :nb].sum())
+        return float(self._partials(self.cg_part, n)[which])
 
-    def _block_triangular(self, n: int, j: int) -> None:
+    def _block_triangular(self, n: int, j: int) -> int:
         """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
-        diagonal blocks as preconditioner, from zero, to inner_tolerance)."""
+        diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
+        iterations."""
         self._inner_begin(n, j)
         rz = rz0 = self._inner_sum(n, 0)
         beta = 0.0
@@ -486,8 +500,8 @@ class CoupledStokes:
             rz, rz_old = self._inner_sum(n, 0), rz
             beta = rz / rz_old
             it += 1
-        self.inner_iterations += it
         self._inner_finish(n, j)
+        return it
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
@@ -520,8 +534,7 @@ class CoupledStokes:
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 17)
             self.grid.for_each_listed(i, self._setup_task, acc)
-            B = ti.Matrix([[acc[0], acc[1], acc[2]], [acc[3], acc[4], acc[5]],
-                           [acc[6], acc[7], acc[8]]])
+            B = self._square(acc, 0)
             self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) - dt * B).inverse()
             grad = ti.Vector([acc[10], acc[11], acc[12]])
             s_alpha = acc[9] + grad.norm_sqr()
@@ -664,10 +677,15 @@ class CoupledStokes:
                                          ti.cast(x[2], float)])
             kappa[i] = ti.cast(x[3], float)
 
+    def _partials(self, part, n: int) -> np.ndarray:
+        """Each row of a (rows, blocks) field of block partial sums, summed over the blocks
+        that hold the n rows, in block order (the same sum on every run)."""
+        nb = (n + self.block - 1) // self.block
+        return part.to_numpy()[:, :nb].sum(axis=1)
+
     def _dot_all(self, n: int, j: int) -> np.ndarray:
         self._dots(n, j)
-        nb = (n + self.block - 1) // self.block
-        return self.part.to_numpy()[: j + 1, :nb].sum(axis=1)
+        return self._partials(self.part, n)[: j + 1]
 
     def _set_coef(self, values: np.ndarray) -> None:
         buf = np.zeros(self.m + 1)
@@ -681,7 +699,7 @@ class CoupledStokes:
         (a per-particle field: k = p / rho0, m^2/s^2). The caller has sorted the particles,
         built the neighbour lists, updated ``rows`` and set the densities."""
         n = self.rows.n
-        self.inner_iterations = 0
+        inner = 0
         self._setup(n, float(dt), *map(float, gravity_m_s2))
         self._warm(n, kappa, 1 if warm_pressure else 0)
         iterations = 0
@@ -703,7 +721,7 @@ class CoupledStokes:
             k = 0
             for j in range(m):
                 if self.flexible:
-                    self._block_triangular(n, j)
+                    inner += self._block_triangular(n, j)
                 else:
                     self._arnoldi_apply(n, j)
                 h = np.zeros(j + 2)
@@ -734,8 +752,7 @@ class CoupledStokes:
             self._update(n, k, self.flexible)
         mean = self._sum(n, True) / max(n, 1)
         self._finish(n, kappa)
-        return StokesResult(bool(done), iterations, float(rel), float(rmax), mean,
-                            self.inner_iterations)
+        return StokesResult(bool(done), iterations, float(rel), float(rmax), mean, inner)
 
     @ti.kernel
     def _block_sums(self, n: ti.i32, continuity: ti.template()):
@@ -753,8 +770,7 @@ class CoupledStokes:
 
     def _sum(self, n: int, continuity: bool) -> float:
         self._block_sums(n, continuity)
-        nb = (n + self.block - 1) // self.block
-        return float(self.part.to_numpy()[0, :nb].sum())
+        return float(self._partials(self.part, n)[0])
 
     # ------------------------------------------------------------------ diagnostics
     @ti.kernel

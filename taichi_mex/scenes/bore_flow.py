@@ -13,14 +13,14 @@ over the middle third of the length.
 """
 
 import math
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block, require_coupled_solve
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
+                                    require_coupled_solve)
 from taichi_mex.scenes.registry import SceneEntry, register
 
 
@@ -60,9 +60,7 @@ class BoreFlowScene:
 
     def analyse(self, sim) -> dict:
         """One coupled solve; the axial velocity of the middle third against Poiseuille's."""
-        t0 = time.perf_counter()
         res = sim.solver.quasi_static()
-        solve_s = time.perf_counter() - t0  # with the solve's first compilation
         nu = sim.material.viscosity_pa_s / sim.material.density_kg_m3
         dx = sim.run_opts.spacing_m
         x = sim.state.numpy("position", FLUID)
@@ -83,9 +81,7 @@ class BoreFlowScene:
                 "profile_error_rms": float(np.sqrt(np.mean(err**2))),
                 "centre_ratio": profile[0][1] / (g * (R**2 - profile[0][0]**2) / (4 * nu)),
                 "profile_r_m_u_m_s": profile, "poiseuille_u_max_m_s": u_max,
-                "radius_m": R, "stokes_iterations": res.iterations,
-                "stokes_inner_iterations": res.inner_iterations, "solve_wall_s": solve_s,
-                "stokes_converged": res.converged}
+                "radius_m": R, **res.figures()}
 
 
 @dataclass
@@ -96,10 +92,7 @@ class BoreFlowOptions:
 
 
 def _defaults(_options) -> dict:
-    return {"run": {"scheme": "dfsph", "spacing_mm": 0.025,
-                    "dfsph": {"creeping_solve": "coupled"}},
-            "material": {"name": "PLA melt", "density_kg_m3": 1240.0, "viscosity_pa_s": 1000.0,
-                         "viscosity_model": "newtonian"}}
+    return coupled_pla_defaults(0.025)
 
 
 register(SceneEntry("bore-flow", "melt falling through the nozzle bore (Poiseuille)",

@@ -27,7 +27,8 @@ import numpy as np
 from taichi_mex.backend import ti
 from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block, require_coupled_solve
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
+                                    require_coupled_solve)
 from taichi_mex.scenes.registry import SceneEntry, register
 
 
@@ -182,10 +183,7 @@ class ExtensionOptions:
 
 
 def _defaults(_options) -> dict:
-    return {"run": {"scheme": "dfsph", "spacing_mm": 0.1, "gravity_m_s2": 0.0,
-                    "dfsph": {"creeping_solve": "coupled"}},
-            "material": {"name": "PLA melt", "density_kg_m3": 1240.0, "viscosity_pa_s": 1000.0,
-                         "viscosity_model": "newtonian"}}
+    return coupled_pla_defaults(0.1, gravity_m_s2=0.0)
 
 
 register(SceneEntry("extension", "a melt filament pulled apart at its ends (uniaxial extension)",

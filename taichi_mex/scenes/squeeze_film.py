@@ -13,7 +13,6 @@ the force summed on the disc's particles.
 """
 
 import math
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -21,7 +20,8 @@ import numpy as np
 from taichi_mex.core.state import FLUID, NOZZLE, PLATE
 from taichi_mex.errors import UserInputError
 from taichi_mex.options import Positive, opt
-from taichi_mex.scenes.base import ParticleBlock, ScenePlan, lattice_block, require_coupled_solve
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
+                                    require_coupled_solve)
 from taichi_mex.scenes.registry import SceneEntry, register
 
 
@@ -73,9 +73,7 @@ class SqueezeFilmScene:
         solver = sim.solver
         mu = sim.material.viscosity_pa_s
         rho = sim.material.density_kg_m3
-        t0 = time.perf_counter()
         res = solver.quasi_static()
-        solve_s = time.perf_counter() - t0  # with the solve's first compilation
         phase = sim.state.numpy("phase")
         force = solver.stokes.wall_force(phase == NOZZLE)
         gap, R = sim.plan.info["gap_m"], sim.plan.info["radius_m"]
@@ -88,11 +86,7 @@ class SqueezeFilmScene:
         return {"force_n": float(force[2]), "stefan_force_n": ref,
                 "force_ratio": float(force[2] / ref),
                 "centre_pressure_ratio": p_centre / (3 * mu * self.V * R**2 / gap**3),
-                "stokes_iterations": res.iterations, "stokes_converged": res.converged,
-                "stokes_inner_iterations": res.inner_iterations, "solve_wall_s": solve_s,
-                "stokes_momentum_residual": res.momentum_residual,
-                "stokes_density_error_max": res.density_error_max,
-                "gap_m": gap, "radius_m": R, "speed_m_s": self.V, "viscosity_pa_s": mu}
+                **res.figures(), "gap_m": gap, "radius_m": R, "speed_m_s": self.V, "viscosity_pa_s": mu}
 
 
 @dataclass
@@ -105,10 +99,7 @@ class SqueezeFilmOptions:
 
 
 def _defaults(_options) -> dict:
-    return {"run": {"scheme": "dfsph", "spacing_mm": 0.05, "gravity_m_s2": 0.0,
-                    "dfsph": {"creeping_solve": "coupled"}},
-            "material": {"name": "PLA melt", "density_kg_m3": 1240.0, "viscosity_pa_s": 1000.0,
-                         "viscosity_model": "newtonian"}}
+    return coupled_pla_defaults(0.05, gravity_m_s2=0.0)
 
 
 register(SceneEntry("squeeze-film", "a disc squeezing a melt film onto the plate (Stefan's law)",
