@@ -510,8 +510,9 @@ class DFSPHOptions:
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: a free surface takes no viscous traction (the viscous term's "
         "boundary part written as the pressure's is, physics/stokes.py); off: the viscous sum "
-        "over the neighbours a surface particle has. Prints need it off for now: with it the "
-        "solve's iterations grow with the melt (validation/strands)", check=Flag(),
+        "over the neighbours a surface particle has. Prints need it off for now: its viscous "
+        "term is not dissipative at a bead's side, and a bead blows up (physics/stokes.py)",
+        check=Flag(),
         flag="--no-surface-traction", const=False)
     stokes_density_source: str = opt(
         "summation", help="coupled solve: what the continuity rows remove besides divergence: "

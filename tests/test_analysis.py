@@ -88,6 +88,30 @@ def test_single_rectangular_bead(tmp_path):
     assert plate["neck_width_mm"] == pytest.approx(0.48, abs=2 * pixel_mm)
 
 
+def test_column_tops_tell_a_flat_top_from_a_dome(tmp_path):
+    """The flat-top test of issue 15 reads every column of the middle half: a rectangle's
+    columns all stand at its height; a half-disc's rise from sqrt(3)/2 R to R over it."""
+    W, H = 0.48e-3, 0.2e-3
+    flat = lattice_section(-W / 2, W / 2, 0.0, H)
+    R = 0.24e-3
+    dome = lattice_section(-R, R, 0.0, R, DX / 2)
+    dome = dome[np.hypot(dome[:, 0], dome[:, 1]) <= R]
+    for name, yz, dx in (("flat", flat, DX), ("dome", dome, DX / 2)):
+        run = write_run(tmp_path / name, yz, np.zeros(len(yz)), dx=dx)
+        sec = analysis.cross_section(analysis.load_frame(run / "particles.h5"), [0, 0, 0],
+                                     [1, 0, 0], dx)
+        (b,) = sec.beads
+        pixel_mm = 1e3 * sec.pixel_m
+        if name == "flat":
+            assert b["top_min_mm"] == pytest.approx(0.20, abs=1.01 * pixel_mm)
+            assert b["top_max_mm"] == pytest.approx(0.20, abs=1.01 * pixel_mm)
+        else:
+            assert b["top_max_mm"] == pytest.approx(0.24, abs=1e3 * dx)
+            assert b["top_min_mm"] == pytest.approx(0.24 * math.sqrt(3) / 2, abs=1e3 * dx)
+        assert b["top_min_mm"] <= b["top_median_mm"] <= b["top_max_mm"]
+        assert sec.totals["top_min_mm"] == b["top_min_mm"]
+
+
 def test_neck_between_two_overlapping_round_beads(tmp_path):
     dx = DX / 2                       # ten particles per radius: the lattice disc is close to round
     R, d = 0.2e-3, 0.3e-3             # radius, centre distance: overlap 0.1 mm

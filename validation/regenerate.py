@@ -189,7 +189,13 @@ STRAND = [("material area / commanded", ratio_to("bead_material_area_mm2", _stra
               "bead_width_mm", lambda r: slicer_width_mm(_strand_area(r), _strand_of(r)[0]))),
           ("section H mm / gap", ratio_to("bead_height_mm", lambda r: _strand_of(r)[0])),
           ("p99 W / H mm", lambda r: f"{r['bead_width_p99_mm']:.3f} / {r['bead_height_p99_mm']:.3f}"
-           if r.get("bead_width_p99_mm") else "")]
+           if r.get("bead_width_p99_mm") else ""),
+          # issue 15's flat-top test: every column of the middle half within 10 % of the gap,
+          # their median within 5 %
+          ("top of the middle half, min / median / max vs gap", lambda r: " / ".join(
+              f"{r['bead_' + k] / _strand_of(r)[0] - 1:+.0%}"
+              for k in ("top_min_mm", "top_median_mm", "top_max_mm"))
+           if r.get("bead_top_min_mm") is not None else "")]
 
 HYDRO = ("--width-mm", 8, "--height-mm", 12)
 SHEAR = ("--length-mm", 6, "--height-mm", 3, "--plate-speed", 0.01, "--until", 0.01)

@@ -28,9 +28,11 @@ velocity vanishes relative to the wall at the wall's surface rather than a kerne
 inside it: with u_b = v_b the squeeze film's lubrication pressure came out as for a gap 15 %
 (6 layers) to 27 % (4 layers) wider (measured, 2026-12-02). The ghost makes L non-symmetric,
 so the system is solved by GMRES (Saad & Schultz, SIAM J. Sci. Stat. Comput. 7, 1986),
-restarted and right-preconditioned. For k the preconditioner takes Cahouet & Chabard's
-(Int. J. Numer. Methods Fluids 8, 1988) approximation of the Schur complement's inverse,
-nu_i / dt + alpha_i / dt^2 (alpha: DFSPH's diagonal factor). For u, by default
+restarted and right-preconditioned. For k the preconditioner takes the diagonal of SIMPLE's
+approximation of the Schur complement, D B^-1 G with B the momentum rows' 3x3 diagonal blocks
+(Patankar & Spalding, Int. J. Heat Mass Transfer 15, 1972; as a preconditioner: Elman, Howle,
+Shadid, Shuttleworth & Tuminaro, J. Comput. Phys. 227, 2008); see "Schur approximation" below.
+For u, by default
 (``block_triangular``) an inner conjugate-gradient solve of the viscous rows given that k,
 with flexible GMRES outside (see "block-triangular preconditioner" below); or
 (``block_diagonal``) the 3x3 diagonal blocks of the momentum rows alone, which leave the
@@ -57,7 +59,15 @@ alone would give it no viscous flux, which is not zero traction. With ``surface_
 the viscous term gets the boundary part the pressure has (see ``_surface_setup``), and the
 divergence and its adjoint gradient use Bonet & Lok's (1999) corrected kernel gradient, so
 that -p + 2 mu n.D.n, not p alone, vanishes there (filament under extension: interior
-pressure 1.03-1.09 of Trouton's -mu e, against 1.8-2.6 without).
+pressure 1.03-1.09 of Trouton's -mu e, against 1.8-2.6 without). The added viscous term is
+not dissipative by construction: on the bundled bead (draft) the symmetric part of the
+momentum block I - dt L* has negative eigenvalues once the melt reaches 384 particles (-178
+against a largest 9,480), and at t = 0.355 s the block itself has a negative real eigenvalue
+(-54) on five particles at the bead's side: a mode the step amplifies. The solve then stops
+converging and the run blows up, whatever the Schur approximation (measured with both).
+Bonet & Lok's correction of D and G alone leaves the block dissipative and the solve at
+45-50 outer iterations; the traction's term needs a symmetric (energy) form before prints
+can use it, so they run with ``surface_traction`` off.
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
@@ -168,30 +178,36 @@ class CoupledStokes:
     # ------------------------------------------------------------------ operator pieces
     @ti.func
     def _setup_task(self, i, slot, j, xij, acc: ti.template()):
-        """Cache c F; accumulate the 3x3 diagonal block (acc[0:9]), sum |V grad W|^2 over melt
-        (acc[9]) and sum V grad W (acc[10:13]) for alpha, and the walls' constant terms of the
-        right-hand side: momentum (acc[13:16]) and continuity (acc[16])."""
+        """Cache c F; accumulate the 3x3 diagonal block (acc[0:9]) and the walls' constant
+        terms of the right-hand side: momentum (acc[9:12]) and continuity (acc[12])."""
         r2 = xij.norm_sqr()
         cF = 0.0
         if r2 < self.K.H * self.K.H and r2 > 0.0:
             F = self.K.F(ti.sqrt(r2))
             cF = self.viscous._coef(i, j, r2) * F
-            gV = self.V * F * xij
-            if self.state.phase[j] == FLUID:
-                acc[9] += gV.dot(gV)
-            else:
+            if self.state.phase[j] != FLUID:
                 vb = ti.cast(self.state.v[j], ti.f64)
                 gb = 2.0 * vb if self.shepard[j] > 0.0 else vb  # Adami's ghost, less u~_b
                 w = cF * gb.dot(xij) * xij
                 for d in ti.static(range(3)):
-                    acc[13 + d] += w[d]
-                acc[16] += vb.dot(self._corrected(i, gV))
-            for d in ti.static(range(3)):
-                acc[10 + d] += gV[d]
+                    acc[9 + d] += w[d]
+                acc[12] += vb.dot(self._corrected(i, self.V * F * xij))
         self.cF[i, slot] = cF
         for a in ti.static(range(3)):
             for b in ti.static(range(3)):
                 acc[3 * a + b] += cF * xij[a] * xij[b]
+
+    @ti.func
+    def _schur_task(self, i, slot, j, xij, acc: ti.template()):
+        """acc[0:3]: G(e_i)_i = sum over all neighbours of V grad W corrected at i; acc[3]: sum
+        over melt neighbours of G(e_i)_j . B_j^-1 G(e_i)_j (G(e_i)_j = -that pair's term)."""
+        r2 = xij.norm_sqr()
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            c = ti.cast(self._corrected(i, self.V * self.K.F(ti.sqrt(r2)) * xij), ti.f64)
+            for d in ti.static(range(3)):
+                acc[d] += c[d]
+            if self.state.phase[j] == FLUID:
+                acc[3] += c.dot(self.Binv[j] @ c)
 
     # ------------------------------------------------------------ free-surface traction
     # Weiler's operator sums (u_i - u_j) over the neighbours a particle has: at a free surface
@@ -370,9 +386,9 @@ class CoupledStokes:
             self.z[i] = ti.Vector([u[0], u[1], u[2], self.sigma[i] * vi[3]])
 
     # ------------------------------------------------- block-triangular preconditioner
-    # P = [A, dt G; 0, -S~] with S~^-1 = sigma, Cahouet & Chabard's approximation of the
-    # inverse of the Schur complement S = D A^-1 dt G (positive: D is G's adjoint), and A^-1
-    # applied by an inner conjugate-gradient solve:
+    # P = [A, dt G; 0, -S~] with S~^-1 = sigma (below) approximating the inverse of the Schur
+    # complement S = D A^-1 dt G (positive: D is G's adjoint), and A^-1 applied by an inner
+    # conjugate-gradient solve:
     #     k = -sigma v_k,   u = A~^-1 (v_u - dt G(k)).
     # The system's own lower block is 0 - S, hence the sign: with +sigma the eigenvalues split
     # into clusters at +1 and -1 and the bore flow took 1.4-2x the outer iterations (measured).
@@ -388,9 +404,28 @@ class CoupledStokes:
     # block diagonal; 8 per radius converges (it did not in 20,000 iterations). Tried and not
     # kept: BiCGStab on the whole momentum block (traction and ghosts included) as the inner
     # solve: 4.2 s on the bore, but 6 s a solve against 0.5-1.4 s on a bead's first melt, whose
-    # outer iterations the free-surface traction sets through the Schur approximation (without
-    # the traction: ~85 outer iterations whatever the melt's size; with it 160 at 192 melt
-    # particles, 2,600 at 416).
+    # outer iterations the free-surface traction sets (without the traction: ~85 outer
+    # iterations whatever the melt's size; with it 160 at 192 melt particles, 2,600 at 416;
+    # both with the earlier Schur approximation below).
+    #
+    # Schur approximation. sigma_i = 1 / (D B^-1 G)_ii, the diagonal of SIMPLE's D B^-1 G
+    # (B: the momentum rows' 3x3 diagonal blocks), assembled exactly from the pairs. Its
+    # inertial limit (B = I) is DFSPH's diagonal factor; in the creeping limit it is a local
+    # form of Cahouet & Chabard's (Int. J. Numer. Methods Fluids 8, 1988) nu M^-1, which this
+    # solver took before, nu_i / dt + alpha_i / dt^2. That one assumes the viscous and the
+    # pressure operators scale alike everywhere; here they do not: a free-surface particle has
+    # half its neighbours, a wall row counts its ghosts twice, and Bonet & Lok's correction
+    # makes D and G up to 10x larger at the surface (|M^-1| up to 10-19 on a draft bead). On
+    # matrices taken from a bead (256 melt particles, eigenvalues of sigma S spread over
+    # 0.0014-3.2 with Cahouet & Chabard's), FGMRES with an exact inner solve needed 112 outer
+    # iterations against 316 (traction on) and 98 against 248 (traction off, numpy, one
+    # right-hand side); the full SIMPLE matrix solved per iteration would give 66 / 42 for a
+    # pressure Poisson solve in every preconditioner call, not kept. Measured on the runs
+    # (2026-12-02, 2 cores): bore flow 280 / 440 outer iterations at 4 / 6 per radius against
+    # 440 / 720, same profile, solve 2.1-2.5x faster; the bundled bead at draft without the
+    # traction 47 outer / 249 inner iterations a step against 90 / 461, 157 s against 376 s,
+    # same section; with the traction 80-91 outer iterations a step against 140-250 while
+    # the melt grows to 352 particles (then see "Free surface" above).
     @ti.func
     def _pressure_task(self, i, slot, j, xij, acc: ti.template()):
         """G(k)_i of z's k."""
@@ -532,18 +567,11 @@ class CoupledStokes:
         g = ti.Vector([gx, gy, gz])
         for slot in range(n):
             i = self.rows.index[slot]
-            acc = ti.Vector.zero(ti.f64, 17)
+            acc = ti.Vector.zero(ti.f64, 13)
             self.grid.for_each_listed(i, self._setup_task, acc)
-            B = self._square(acc, 0)
-            self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) - dt * B).inverse()
-            grad = ti.Vector([acc[10], acc[11], acc[12]])
-            s_alpha = acc[9] + grad.norm_sqr()
-            alpha = 1.0 / s_alpha if s_alpha > 0.0 else 0.0
-            nu = self.visc.eta_of(i) / self.rho0
-            # the Schur complement of the dx-scaled rows is dx / dt times the unscaled one's
-            self.sigma[i] = nu / self.dx + alpha / (dt * self.dx)
+            self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)).inverse()
             v = ti.cast(self.state.v[i], ti.f64) + dt * g
-            wall = ti.Vector([acc[13], acc[14], acc[15]])
+            wall = ti.Vector([acc[9], acc[10], acc[11]])
             mom = v - dt * wall
             if ti.static(self.traction):
                 mom += dt * self.surf_rhs[i]
@@ -551,7 +579,16 @@ class CoupledStokes:
             s = ti.cast(0.0, ti.f64)
             if ti.static(self.summation_source):
                 s = ti.min((1.0 - rho / self.rho0) / dt, 0.0)
-            self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[16])])
+            self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
+        # the Schur approximation needs every melt row's B^-1: a loop of its own
+        for slot in range(n):
+            i = self.rows.index[slot]
+            acc = ti.Vector.zero(ti.f64, 4)
+            self.grid.for_each_listed(i, self._schur_task, acc)
+            Gi = ti.Vector([acc[0], acc[1], acc[2]])
+            # (D B^-1 G)_ii; the dx-scaled continuity rows and dt G make it dx dt times that
+            s_ii = (self.Binv[i] @ Gi).dot(Gi) + acc[3]
+            self.sigma[i] = 1.0 / (dt * self.dx * s_ii) if s_ii > 0.0 else 0.0
 
     @ti.kernel
     def _residual(self, n: ti.i32) -> ti.types.vector(3, ti.f64):

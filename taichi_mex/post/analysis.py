@@ -450,6 +450,18 @@ def _components(mask: np.ndarray) -> tuple[np.ndarray, int]:
     return out.reshape(h, w), len(roots)
 
 
+def _column_tops(crop: np.ndarray) -> np.ndarray:
+    """Per pixel column of the middle half of a bead's bounding box (crop: True where the
+    bead is, row 0 its lowest row), the height of its highest bead pixel above the box's
+    floor, in pixels: the issue's flat-top test reads every column of the middle half, not
+    the bead's extreme."""
+    nu = crop.shape[1]
+    lo, hi = nu // 4, max(nu - nu // 4, nu // 4 + 1)
+    middle = crop[:, lo:hi]
+    rows = np.arange(middle.shape[0])[:, None]
+    return np.where(middle, rows + 1, 0).max(axis=0)
+
+
 def _measure(sec: Section, comp, filled, per_bead: dict) -> None:
     """Fill sec.beads, sec.contacts, sec.voids and sec.totals from the label image;
     ``per_bead`` maps a bead id to (particles in the slab, their area in mm^2)."""
@@ -475,11 +487,14 @@ def _measure(sec: Section, comp, filled, per_bead: dict) -> None:
         width = (cols.max() - cols.min() + 1) * p_mm
         height = (rows.max() - rows.min() + 1) * p_mm
         crop = core[rows.min():rows.max() + 1, cols.min():cols.max() + 1] == b
+        tops = _column_tops(crop) * p_mm
         piece, count = _components(crop)
         pieces = int((np.bincount(piece[piece >= 0], minlength=count) >= min_piece_px).sum())
         beads.append({
             "bead_id": b, "substrate": b < 0, "area_mm2": area, "width_mm": width,
             "height_mm": height, "centroid_mm": [cu, cv],
+            "top_min_mm": float(tops.min()), "top_median_mm": float(np.median(tops)),
+            "top_max_mm": float(tops.max()),
             "bounds_mm": [float(uc[cols.min()] - p_mm / 2), float(uc[cols.max()] + p_mm / 2),
                           float(vc[rows.min()] - p_mm / 2), float(vc[rows.max()] + p_mm / 2)],
             "particle_area_mm2": per_bead.get(b, (0, 0.0))[1],
@@ -554,6 +569,9 @@ def _measure(sec: Section, comp, filled, per_bead: dict) -> None:
         "filled_subresolution_area_mm2": float(filled.sum()) * px_area,
         "mean_width_mm": mean([d["width_mm"] for d in real]),
         "mean_height_mm": mean([d["height_mm"] for d in real]),
+        "top_min_mm": min((d["top_min_mm"] for d in real), default=None),
+        "top_median_mm": mean([d["top_median_mm"] for d in real]),
+        "top_max_mm": max((d["top_max_mm"] for d in real), default=None),
         "mean_area_mm2": mean([d["area_mm2"] for d in real]),
         "mean_particle_area_mm2": mean([d["particle_area_mm2"] for d in real]),
         "mean_neck_side_mm": mean([c["neck_width_mm"] for c in contacts if c["kind"] == "side"]),

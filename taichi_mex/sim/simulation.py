@@ -29,13 +29,15 @@ _TEMP_FACTOR = 2.0
 #: particle-steps per second measured on a 2-core CPU (README, Performance and trade
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "static": 3.0e6}
+#: dfsph-coupled: the bundled bead with --creeping-solve coupled --no-surface-traction
+#: (draft 157 s, standard 594 s, estimated 198 s and 465 s; 2026-12-02)
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.6e4, "static": 3.0e6}
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 #: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
 #: rate; the default bead runs 3.5x faster, the paper blocks (3x its viscosity iterations,
 #: and a compression correction in half of their steps) at 1.0-1.1x its time
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1)}
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.8, 1.3)}
 
 
 def available_memory_bytes() -> int:
@@ -201,11 +203,19 @@ class Simulation:
         so a run costs about (initial + inflow / 2) particles x steps. None on a GPU (not
         measured)."""
         run = self.run_opts
-        if run.arch != "cpu" or run.scheme not in MEASURED_RATE_2CORE:
+        if run.arch != "cpu" or self._rate_key() not in MEASURED_RATE_2CORE:
             return None
         threads = run.cpu_threads or os.cpu_count() or 2
-        rate = MEASURED_RATE_2CORE[run.scheme] * min(threads, os.cpu_count() or threads) / 2.0
+        rate = MEASURED_RATE_2CORE[self._rate_key()] * min(threads, os.cpu_count() or threads) / 2.0
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
+
+    def _rate_key(self) -> str:
+        """The measured rate that applies: the coupled creeping solve costs several times the
+        split one per particle-step."""
+        run = self.run_opts
+        if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
+            return "dfsph-coupled"
+        return run.scheme
 
     @staticmethod
     def _max_neighbours(factor: float) -> int:
@@ -251,11 +261,12 @@ class Simulation:
         threads = self.run_opts.cpu_threads or os.cpu_count()
         text = f"{wall:.0f} s" if wall < 120 else (f"{wall / 60:.0f} min" if wall < 7200 else f"{wall / 3600:.1f} h")
         spread = ""
-        if self.run_opts.scheme in ESTIMATE_SPREAD:
-            lo, hi = ESTIMATE_SPREAD[self.run_opts.scheme]
+        key = self._rate_key()
+        if key in ESTIMATE_SPREAD:
+            lo, hi = ESTIMATE_SPREAD[key]
             spread = f"; measured runs took {lo:g}-{hi:g}x such estimates"
         return (f"; about {text} of wall time on {threads} CPU thread(s) at the rates measured "
-                f"for {self.run_opts.scheme} (README, Performance){spread}")
+                f"for {key} (README, Performance){spread}")
 
     # ----------------------------------------------------------------- building
     def build(self) -> None:
@@ -660,6 +671,8 @@ class Simulation:
             first = meso["sections"][0]
             summary["bead_width_mm"] = first.get("mean_width_mm")
             summary["bead_height_mm"] = first.get("mean_height_mm")
+            for key in ("top_min_mm", "top_median_mm", "top_max_mm"):
+                summary["bead_" + key] = first.get(key)
             summary["bead_area_mm2"] = first.get("mean_area_mm2")
             summary["void_fraction"] = first.get("void_fraction")
         if self.probes is not None:
@@ -773,7 +786,9 @@ class Simulation:
             "wall_time_s": float(wall_s),
             "steps": int(self.steps),
             "particle_steps_per_s": float(particle_steps / wall_s) if wall_s > 0 else 0.0,
-            "wall_time_per_simulated_s": float(wall_s / max(self.time_s - self.plan.t_start_s, 1e-300)),
+            # a quasi-static scene (one solve, no time) has no such figure: None, not 1e300
+            "wall_time_per_simulated_s": (float(wall_s / (self.time_s - self.plan.t_start_s))
+                                          if self.time_s > self.plan.t_start_s else None),
             "last_dt_limits_s": {k: float(v) for k, v in dt_limits.items()},
             "arch": getattr(self, "arch_used", None),
             "precision": self.run_opts.precision,
