@@ -21,7 +21,6 @@ import json
 import math
 import os
 import platform
-import re
 import shlex
 import subprocess
 import sys
@@ -128,7 +127,8 @@ LOSSES = [("droplets ejected / particles lost", lambda r: f"{r.get('droplets_eje
 @dataclass
 class Case:
     what: str
-    #: (label, arguments after 'python -m taichi_mex'); '{out}' is the run's output folder
+    #: (label, arguments after 'python -m taichi_mex'[, parameters the columns read from the
+    #: row]); '{out}' is the run's output folder
     runs: list
     quick: list
     columns: list
@@ -175,8 +175,7 @@ STRANDS = [(0.2, 0.45, "draft"), (0.2, 0.45, "standard"), (0.1, 0.4, 0.05),
 
 
 def _strand_of(r) -> tuple[float, float]:
-    m = re.match(r"gap ([0-9.]+), width ([0-9.]+)", r.get("label", ""))
-    return (float(m.group(1)), float(m.group(2))) if m else (BEAD_GAP_MM, 0.45)
+    return r["gap_mm"], r["width_mm"]
 
 
 def _strand_area(r) -> float:
@@ -256,9 +255,10 @@ CASES = {
         "single beads of six gap / line-width combinations under the 0.4 mm nozzle (60 mm/s, "
         "PLA 1000 Pa s), coupled solve without the free surface's traction: section against "
         "the commanded area and the slicer's rounded rectangle",
-        [(f"gap {g:.2f}, width {w:.2f}, {res}", strand(g, w, "--resolution", res))
-         for g, w, res in STRANDS],
-        [("gap 0.20, width 0.45, 0.1", strand(0.2, 0.45, "--resolution", 0.1))],
+        [(f"gap {g:.2f}, width {w:.2f}, {res}", strand(g, w, "--resolution", res),
+          {"gap_mm": g, "width_mm": w}) for g, w, res in STRANDS],
+        [("gap 0.20, width 0.45, 0.1", strand(0.2, 0.45, "--resolution", 0.1),
+          {"gap_mm": 0.2, "width_mm": 0.45})],
         COMMON + STRAND + DENSITY[:2] + [
             ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
              f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
@@ -459,7 +459,7 @@ def shown(cmd: list[str]) -> str:
 
 def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[dict], list[str]]:
     rows, commands = [], []
-    for k, (label, args) in enumerate(case.quick if quick else case.runs):
+    for k, (label, args, *params) in enumerate(case.quick if quick else case.runs):
         out = out_root / f"{k:02d}"
         out.mkdir(parents=True, exist_ok=True)
         cmd = taichi_command([str(a).replace("{out}", str(out)) for a in args])
@@ -474,6 +474,8 @@ def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[d
             got = [{"failure": f"exit {proc.returncode}: {_last_error(proc.stdout) or exc}"}]
         for r in got:
             r.setdefault("label", label)
+            for key, value in (params[0] if params else {}).items():
+                r.setdefault(key, value)
             r.setdefault("wall_time_s", time.perf_counter() - t0)
             if isinstance(r.get("error"), str):  # a run that stopped (blow-up, refusal)
                 r["stopped"] = r["error"].split(". ")[0]
