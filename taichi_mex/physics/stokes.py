@@ -423,8 +423,8 @@ class CoupledStokes:
     # pressure Poisson solve in every preconditioner call, not kept. Measured on the runs
     # (2026-12-02, 2 cores): bore flow 280 / 440 outer iterations at 4 / 6 per radius against
     # 440 / 720, same profile, solve 2.1-2.5x faster; the bundled bead at draft without the
-    # traction 47 outer / 249 inner iterations a step against 90 / 461, 157 s against 376 s,
-    # same section; with the traction 80-91 outer iterations a step against 140-250 while
+    # traction 47 outer / 249 inner iterations a step against 90 / 461 (157-277 s against
+    # 376 s with compilation, which varies with Taichi's kernel cache), same section; with the traction 80-91 outer iterations a step against 140-250 while
     # the melt grows to 352 particles (then see "Free surface" above).
     @ti.func
     def _pressure_task(self, i, slot, j, xij, acc: ti.template()):

@@ -30,14 +30,14 @@ _TEMP_FACTOR = 2.0
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
 #: dfsph-coupled: the bundled bead with --creeping-solve coupled --no-surface-traction
-#: (draft 157 s, standard 594 s, estimated 198 s and 465 s; 2026-12-02)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.6e4, "static": 3.0e6}
+#: (draft 157-277 s, standard 594-752 s, estimated 235 s and 556 s; 2026-12-02)
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.0e4, "static": 3.0e6}
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 #: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
 #: rate; the default bead runs 3.5x faster, the paper blocks (3x its viscosity iterations,
 #: and a compression correction in half of their steps) at 1.0-1.1x its time
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.8, 1.3)}
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.4)}
 
 
 def available_memory_bytes() -> int:
