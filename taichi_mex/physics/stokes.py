@@ -422,10 +422,13 @@ class CoupledStokes:
     # right-hand side); the full SIMPLE matrix solved per iteration would give 66 / 42 for a
     # pressure Poisson solve in every preconditioner call, not kept. Measured on the runs
     # (2026-12-02, 2 cores): bore flow 280 / 440 outer iterations at 4 / 6 per radius against
-    # 440 / 720, same profile, solve 2.1-2.5x faster; the bundled bead at draft without the
-    # traction 47 outer / 249 inner iterations a step against 90 / 461 (157-277 s against
-    # 376 s with compilation, which varies with Taichi's kernel cache), same section; with the traction 80-91 outer iterations a step against 140-250 while
-    # the melt grows to 352 particles (then see "Free surface" above).
+    # 440 / 720, same profile, solve 2.1-2.5x faster, but 2,760 against 1,160 at 8 per radius
+    # (SIMPLE's error in the interior grows with the resolution; the geometric mean of the two
+    # diagonals took 240 / 400 / 600 there and 47 a step on the bead: measured, not landed);
+    # the bundled bead at draft without the traction 47 outer / 249 inner iterations a step
+    # against 90 / 461 (157-277 s against 376 s with compilation, which varies with Taichi's
+    # kernel cache), same section; with the traction 80-91 outer iterations a step against
+    # 140-250 while the melt grows to 352 particles (then see "Free surface" above).
     @ti.func
     def _pressure_task(self, i, slot, j, xij, acc: ti.template()):
         """G(k)_i of z's k."""
