@@ -168,6 +168,14 @@ def strand(gap_mm, width_mm, *args):
             *QUIET, "--out", "{out}"]
 
 
+def strand_run(gap_mm, width_mm, resolution):
+    """A coupled strand's (label, arguments, parameters): the columns read gap and width from
+    the parameters, the label shows the same numbers."""
+    return (f"gap {gap_mm:.2f}, width {width_mm:.2f}, {resolution}",
+            strand(gap_mm, width_mm, "--resolution", resolution),
+            {"gap_mm": gap_mm, "width_mm": width_mm})
+
+
 #: (gap mm, line width mm, resolution) of the coupled strands; at a 0.1 mm gap draft's
 #: 0.067 mm is refused (under 2 particles per layer): 0.05 mm is the coarsest allowed
 STRANDS = [(0.2, 0.45, "draft"), (0.2, 0.45, "standard"), (0.1, 0.4, 0.05),
@@ -255,10 +263,7 @@ CASES = {
         "single beads of six gap / line-width combinations under the 0.4 mm nozzle (60 mm/s, "
         "PLA 1000 Pa s), coupled solve without the free surface's traction: section against "
         "the commanded area and the slicer's rounded rectangle",
-        [(f"gap {g:.2f}, width {w:.2f}, {res}", strand(g, w, "--resolution", res),
-          {"gap_mm": g, "width_mm": w}) for g, w, res in STRANDS],
-        [("gap 0.20, width 0.45, 0.1", strand(0.2, 0.45, "--resolution", 0.1),
-          {"gap_mm": 0.2, "width_mm": 0.45})],
+        [strand_run(g, w, res) for g, w, res in STRANDS], [strand_run(0.2, 0.45, 0.1)],
         COMMON + STRAND + DENSITY[:2] + [
             ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
              f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),

@@ -32,9 +32,8 @@ restarted and right-preconditioned. For k the preconditioner takes the diagonal 
 approximation of the Schur complement, D B^-1 G with B the momentum rows' 3x3 diagonal blocks
 (Patankar & Spalding, Int. J. Heat Mass Transfer 15, 1972; as a preconditioner: Elman, Howle,
 Shadid, Shuttleworth & Tuminaro, J. Comput. Phys. 227, 2008); see "Schur approximation" below.
-For u, by default
-(``block_triangular``) an inner conjugate-gradient solve of the viscous rows given that k,
-with flexible GMRES outside (see "block-triangular preconditioner" below); or
+For u, by default (``block_triangular``) an inner conjugate-gradient solve of the viscous rows
+given that k, with flexible GMRES outside (see "block-triangular preconditioner" below); or
 (``block_diagonal``) the 3x3 diagonal blocks of the momentum rows alone, which leave the
 viscous rows' conditioning to GMRES: the bore flow at 8 particles per radius did not converge
 in 20,000 iterations with it and converges in 1,160 with the inner solve.

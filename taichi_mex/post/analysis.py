@@ -456,8 +456,7 @@ def _column_tops(crop: np.ndarray) -> np.ndarray:
     floor, in pixels: the issue's flat-top test reads every column of the middle half, not
     the bead's extreme."""
     nu = crop.shape[1]
-    lo, hi = nu // 4, max(nu - nu // 4, nu // 4 + 1)
-    middle = crop[:, lo:hi]
+    middle = crop[:, nu // 4:nu - nu // 4]  # never empty: nu - 2 (nu // 4) >= 1
     rows = np.arange(middle.shape[0])[:, None]
     return np.where(middle, rows + 1, 0).max(axis=0)
 

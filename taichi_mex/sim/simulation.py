@@ -203,10 +203,11 @@ class Simulation:
         so a run costs about (initial + inflow / 2) particles x steps. None on a GPU (not
         measured)."""
         run = self.run_opts
-        if run.arch != "cpu" or self._rate_key() not in MEASURED_RATE_2CORE:
+        key = self._rate_key()
+        if run.arch != "cpu" or key not in MEASURED_RATE_2CORE:
             return None
         threads = run.cpu_threads or os.cpu_count() or 2
-        rate = MEASURED_RATE_2CORE[self._rate_key()] * min(threads, os.cpu_count() or threads) / 2.0
+        rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
