@@ -16,7 +16,8 @@ Operators (V: the rest volume, F(r) x = grad W):
 
 * L: Weiler et al.'s (2018) viscosity operator, L(u)_i = sum_j c_ij F ((u_i - u_j) . x_ij) x_ij
   with c_ij = d mu_ij (m_j / rho_j) / rho_i / (r^2 + 0.01 H^2) and d calibrated on the lattice
-  (physics/viscosity_weiler2018.py);
+  (physics/viscosity_weiler2018.py); with the free surface's traction, the strain-energy form
+  below, and Weiler's operator only inside the preconditioner;
 * G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
   other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
   D(u)_i = sum_j V (u_i - u_j) . grad W_ij + sum_b V (u_i - u_b) . grad W_ib.
@@ -53,20 +54,31 @@ constant volume as compressed (+6 % at a Hencky strain of 0.36, validation/exten
 source dilates a stretched filament; ``density_source="none"`` keeps the steps divergence-free
 instead.
 
-Free surface: the pressure's symmetric sum gives it zero ambient pressure; the viscous sum
-alone would give it no viscous flux, which is not zero traction. With ``surface_traction``
-the viscous term gets the boundary part the pressure has (see ``_surface_setup``), and the
-divergence and its adjoint gradient use Bonet & Lok's (1999) corrected kernel gradient, so
-that -p + 2 mu n.D.n, not p alone, vanishes there (filament under extension: interior
-pressure 1.03-1.09 of Trouton's -mu e, against 1.8-2.6 without). The added viscous term is
-not dissipative by construction: on the bundled bead (draft) the symmetric part of the
-momentum block I - dt L* has negative eigenvalues once the melt reaches 384 particles (-178
-against a largest 9,480), and at t = 0.355 s the block itself has a negative real eigenvalue
-(-54) on five particles at the bead's side: a mode the step amplifies. The solve then stops
-converging and the run blows up, whatever the Schur approximation (measured with both).
-Bonet & Lok's correction of D and G alone leaves the block dissipative and the solve at
-45-50 outer iterations; the traction's term needs a symmetric (energy) form before prints
-can use it, so they run with ``surface_traction`` off.
+Free surface: the pressure's symmetric sum gives it zero ambient pressure; Weiler's viscous
+sum alone gives it no viscous flux, which is not zero traction. With ``surface_traction`` the
+viscous term is instead the derivative of a discrete dissipation, sum_i V mu_i |D_i|^2 with
+D_i the strain rate from Bonet & Lok's (1999) corrected gradient, the same gradient D and G
+use; its boundary term is then the pressure's, and -p + 2 mu n.D.n, not p alone, vanishes
+at the surface (see "free-surface traction" below). The operator is symmetric and I - dt L
+is at least the identity: no step amplifies a mode. The corrected gradient does not see a
+particle-scale zigzag; Ganzenmueller's (CMAME 286, 2015) hourglass term, Weiler's pair
+dissipation of the velocity differences the gradients do not predict, damps it; it vanishes
+on linear fields, and inside the melt on quadratic ones (the pair's two gradients average to
+the chord's slope), so a Poiseuille profile does not feel it (``stokes_zero_energy_control``,
+default 1: Weiler's weight).
+Measured (2026-12-03, 2 cores): the coarse squeeze film 1.07 of Stefan's force (1.30 with the
+explicit traction correction this replaced, 1.52 without either); the extension filament's
+interior pressure 1.011 of Trouton's -mu e (1.03-1.09). Without the hourglass term the coarse
+film's solution was a zigzag of layers at 0.9 V and ~0 in turn, 0.36 of Stefan's force.
+The extension filament (0.125 mm, divergence-free steps) now reaches a strain of 0.5 with
+44 GMRES iterations a step and no halving (the explicit correction stalled at 0.45), the mid
+radius within 0.6 % of Trouton's to 0.4; there the melt lets go of the stretched end pieces.
+Two things keep it out of prints for now, both measured: Adami's ghost walls slip more under
+it (bore flow 6.4 / 3.3 % of u_max at 4 / 6 per radius against 1.7 % with Weiler's sum, so
+the bore scene runs Weiler's), and the bundled bead (draft) runs to its end without a halving
+but comes out 1.49x the slicer's width with melt 0.12 mm over the gap behind the nozzle and
+kernel sums down to 0.56 rho0 at its surface, at 177 GMRES / 1,790 inner iterations a step
+(47 / 249 with Weiler's) and 8.4x the wall time.
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
@@ -109,8 +121,9 @@ class StokesResult:
 class CoupledStokes:
     #: Krylov basis and scratch, rebuilt by every solve: not part of a checkpoint
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
-                       "Binv", "sigma", "part", "Minv", "Kmap", "surf_rhs", "grad", "Zb", "cg_x",
-                       "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart")
+                       "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
+                       "surf_rhs",
+                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
                  spacing_m: float, rows, opts):
@@ -133,20 +146,26 @@ class CoupledStokes:
         self.tol_rho = float(opts.stokes_density_tolerance)
         self.max_iterations = int(opts.stokes_max_iterations)
         self.traction = bool(opts.stokes_surface_traction)
+        self.hourglass = float(opts.stokes_zero_energy_control)
         self.summation_source = opts.stokes_density_source == "summation"
         self.flexible = opts.stokes_preconditioner == "block_triangular"
         self.inner_tol = float(opts.stokes_inner_tolerance)
         self.inner_max = int(opts.stokes_inner_max_iterations)
         cap = state.capacity
-        # free-surface traction (see _surface_setup): per melt particle the corrected gradient's
-        # inverse moment matrix, the 3 x 9 map from the velocity gradient to the correction of
-        # the viscous term, its constant part from the walls' velocities, and the gradient of
-        # the vector being multiplied
+        # free-surface traction, the strain-energy form (see "Free surface"): per particle the
+        # corrected gradient's inverse moment matrix, the stress 2 nu D of the vector being
+        # multiplied, a wall's adjoint sum, the resulting acceleration, its constant part
+        # from the walls' velocities, and Weiler's diagonal blocks for the inner solve
         shape = cap if self.traction else 1
         self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=shape)
-        self.Kmap = ti.Matrix.field(3, 9, ti.f64, shape=shape)
+        self.Ag = ti.Matrix.field(3, 3, ti.f64, shape=shape)
+        self.T = ti.Matrix.field(3, 3, ti.f64, shape=shape)
+        self.hg = ti.Vector.field(3, ti.f64, shape=shape)
+        self.q = ti.Vector.field(3, ti.f64, shape=shape)
+        self.eacc = ti.Vector.field(3, ti.f64, shape=shape)
         self.surf_rhs = ti.Vector.field(3, ti.f64, shape=shape)
-        self.grad = ti.Matrix.field(3, 3, ti.f64, shape=shape)
+        self.Binv_w = ti.Matrix.field(3, 3, ti.f64, shape=shape)
+        self.affine = ti.field(ti.i32, shape=())  # 1: walls' velocities in the strain too
         vec4 = lambda: ti.Vector.field(4, ti.f64, shape=cap)  # noqa: E731
         self.X, self.rhs, self.w, self.z = vec4(), vec4(), vec4(), vec4()
         self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap))
@@ -197,6 +216,25 @@ class CoupledStokes:
                 acc[3 * a + b] += cF * xij[a] * xij[b]
 
     @ti.func
+    def _energy_block_task(self, k, slot, j, xkj, acc: ti.template()):
+        """The strain-energy form's 3x3 diagonal block, -dL_k/du_k = sum_i nu_i (|a|^2 I +
+        a a^T) over a = a_ik, the weight of u_k in A_i: acc[0:3] sum_j c_kj (a_kk is its
+        negative), acc[3:12] the melt neighbours' terms (a_jk = c_jk). The ghosts' share
+        through u~_b is left out: this block preconditions, it is not the operator."""
+        r2 = xkj.norm_sqr()
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            c = self._c(k, xkj)
+            for d in ti.static(range(3)):
+                acc[d] += c[d]
+            if self.state.phase[j] == FLUID:
+                a = self._c(j, -xkj)
+                nu = ti.cast(self.visc.eta_of(j), ti.f64) / self.rho0
+                blk = nu * (a.norm_sqr() * ti.Matrix.identity(ti.f64, 3) + a.outer_product(a))
+                for p in ti.static(range(3)):
+                    for r in ti.static(range(3)):
+                        acc[3 + 3 * p + r] += blk[p, r]
+
+    @ti.func
     def _schur_task(self, i, slot, j, xij, acc: ti.template()):
         """acc[0:3]: G(e_i)_i = sum over all neighbours of V grad W corrected at i; acc[3]: sum
         over melt neighbours of G(e_i)_j . B_j^-1 G(e_i)_j (G(e_i)_j = -that pair's term)."""
@@ -209,17 +247,27 @@ class CoupledStokes:
                 acc[3] += c.dot(self.Binv[j] @ c)
 
     # ------------------------------------------------------------ free-surface traction
-    # Weiler's operator sums (u_i - u_j) over the neighbours a particle has: at a free surface
-    # the missing side counts as carrying no viscous flux, which for a linear field u = A x
-    # leaves the first particle layer a spurious force L(u_lin) ~ 4 tau.g (g = sum_j V grad
-    # W_ij, nonzero only where the support is cut), not the traction the missing fluid would
-    # exert, zero (Colagrossi, Antuono, Le Touze & Souto-Iglesias, Phys. Rev. E 84, 2011,
-    # analyse this inconsistency). The pressure's symmetric sum already carries the right
-    # boundary term, 2 k g: -p I outside is zero. We give the viscous stress the same one:
-    #     L*(u)_i = L(u)_i - L(u_i + A_i x)_i + 2 nu (A_i + A_i^T) . g_i,
-    # A_i the corrected velocity gradient (Bonet & Lok, CMAME 180, 1999). Inside a full
-    # support both added terms vanish (odd moments of a symmetric neighbourhood); at the
-    # surface the total normal stress -p + 2 mu n.D.n is driven to zero, not p alone.
+    # Weiler's pair sum is the dissipation of pair-wise relative velocities: where a support is
+    # cut by a free surface, its boundary term is that of no viscous flux, not of zero
+    # traction. The strain-energy form takes the viscous term as the derivative of a discrete
+    # dissipation, the way Bonet & Lok (CMAME 180, 1999) derive forces from an energy with
+    # their corrected gradient:
+    #     Phi = sum_i V mu_i |D_i|^2,   D_i = sym(A_i),   A_i = sum_j (u_j - u_i) (x) c_ij,
+    #     c_ij = M_i^-1 V grad W_ij,    L(u)_k = -(1 / (rho0 V)) dPhi / du_k
+    #           = T_k sum_j c_kj - sum_i T_i c_ik + (walls' ghosts, below),  T = 2 nu D.
+    # Inside a full support the first sum vanishes and the second is div(2 nu D); at a free
+    # surface the first is the same boundary term as the pressure's k_i sum_j c_ij (G = -D^T
+    # from the same c), so the discrete natural condition is -p n + 2 mu D n = 0. Phi >= 0 and
+    # the operator is its Hessian: I - dt L is symmetric positive definite in the mass norm,
+    # so no mode can grow (the explicit boundary correction this replaces had a negative
+    # eigenvalue on a bead's side and blew up at t = 0.355 s, 2026-12-02). Walls enter A_i with
+    # Adami's ghost u_b = 2 v_b - u~_b; u~_b is linear in the melt's velocities, so the ghost's
+    # derivative is part of L: wall b gathers q_b = sum_i T_i c_ib and passes it back with the
+    # Shepard weights, L(u)_k += sum_b W_bk q_b / sum_j W_bj. The force on a wall is
+    # -dPhi/dv_b (translating every velocity leaves Phi unchanged: momentum is conserved).
+    # The corrected gradient is blind to a particle-scale zigzag (u_j - u_i vanishes in
+    # symmetric pairs): such modes cost no dissipation; they are not amplified (I - dt L >= I)
+    # but nothing damps them either (measured below).
     @ti.func
     def _corrected(self, i, gV):
         """V grad W with Bonet & Lok's correction (with the traction treatment only)."""
@@ -230,72 +278,156 @@ class CoupledStokes:
 
     @ti.func
     def _square(self, acc: ti.template(), o: ti.template()):
-        """The 3x3 matrix stored row by row in acc[o:o + 9] (the inverse of _flat)."""
+        """The 3x3 matrix stored row by row in acc[o:o + 9]."""
         return ti.Matrix([[acc[o], acc[o + 1], acc[o + 2]], [acc[o + 3], acc[o + 4], acc[o + 5]],
                           [acc[o + 6], acc[o + 7], acc[o + 8]]])
 
     @ti.func
-    def _flat(self, A):
-        return ti.Vector([A[0, 0], A[0, 1], A[0, 2], A[1, 0], A[1, 1], A[1, 2],
-                          A[2, 0], A[2, 1], A[2, 2]], ti.f64)
-
-    @ti.func
-    def _surface_task(self, i, slot, j, xij, acc: ti.template()):
-        """acc[0:9] -sum V F x x^T (moments), acc[9:12] g, acc[12:39] T_abc = sum c F x_a x_b
-        x_c (L of a linear field), acc[39:48] sum_walls V v_b grad W^T."""
+    def _moment_task(self, i, slot, j, xij, acc: ti.template()):
+        """acc: -sum V F x x^T, whose inverse corrects the kernel gradient."""
         r2 = xij.norm_sqr()
         if r2 < self.K.H * self.K.H and r2 > 0.0:
-            F = ti.cast(self.K.F(ti.sqrt(r2)), ti.f64)
             x = ti.cast(xij, ti.f64)
-            cF = ti.cast(self.viscous._coef(i, j, r2), ti.f64) * F
-            for a in ti.static(range(3)):
-                acc[9 + a] += self.V * F * x[a]
-                for b in ti.static(range(3)):
-                    acc[3 * a + b] -= self.V * F * x[a] * x[b]
-                    for c in ti.static(range(3)):
-                        acc[12 + 9 * a + 3 * b + c] += cF * x[a] * x[b] * x[c]
-            if self.state.phase[j] != FLUID:
-                vb = ti.cast(self.state.v[j], ti.f64)
-                for a in ti.static(range(3)):
-                    for b in ti.static(range(3)):
-                        acc[39 + 3 * a + b] += self.V * vb[a] * F * x[b]
-
-    @ti.func
-    def _gradient_task(self, i, j, xij, acc: ti.template()):
-        """sum_j V (u_j - u_i) grad W_ij^T over melt and walls (walls: their velocity is in the
-        right-hand side; here u_b = 0)."""
-        zi = self.z[i]
-        ui = ti.Vector([zi[0], zi[1], zi[2]])
-        uj = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-        if self.state.phase[j] == FLUID:
-            zj = self.z[j]
-            uj = ti.Vector([zj[0], zj[1], zj[2]])
-        gV = self.V * ti.cast(self.K.F(xij.norm()), ti.f64) * ti.cast(xij, ti.f64)
-        acc += (uj - ui).outer_product(gV)
+            acc -= self.V * ti.cast(self.K.F(ti.sqrt(r2)), ti.f64) * x.outer_product(x)
 
     @ti.func
     def _surface_setup(self, n):
         for slot in range(n):
             i = self.rows.index[slot]
-            acc = ti.Vector.zero(ti.f64, 48)
-            self.grid.for_each_listed(i, self._surface_task, acc)
-            M = self._square(acc, 0)
+            M = ti.Matrix.zero(ti.f64, 3, 3)
+            self.grid.for_each_listed(i, self._moment_task, M)
             Minv = ti.Matrix.identity(ti.f64, 3)
             # a neighbourhood in a plane or on a line has no inverse: left uncorrected
             if ti.abs(M.determinant()) > 1e-6:
                 Minv = M.inverse()
             self.Minv[i] = Minv
-            nu = self.visc.eta_of(i) / self.rho0
-            K = ti.Matrix.zero(ti.f64, 3, 9)
+
+    @ti.func
+    def _c(self, i, xij):
+        """c_ij = M_i^-1 V grad W(x_i - x_j)."""
+        x = ti.cast(xij, ti.f64)
+        return self.Minv[i] @ (self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x)
+
+    @ti.func
+    def _wall_velocity(self, b):
+        """Wall b's velocity in the strain: Adami's ghost 2 v_b - u~_b (v_b where no melt is
+        near, or the bore's column); the part in v_b only when ``affine`` is set."""
+        u = ti.Vector.zero(ti.f64, 3)
+        s = self.shepard[b]
+        if s > 0.0:
+            u = -self.ghost[b] / s
+        if self.affine[None] == 1:
+            vb = ti.cast(self.state.v[b], ti.f64)
+            u += 2.0 * vb if s > 0.0 else vb
+        return u
+
+    @ti.func
+    def _strain_task(self, i, slot, j, xij, acc: ti.template()):
+        r2 = xij.norm_sqr()
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            zi = self.z[i]
+            uj = ti.Vector.zero(ti.f64, 3)
+            if self.state.phase[j] == FLUID:
+                zj = self.z[j]
+                uj = ti.Vector([zj[0], zj[1], zj[2]])
+            else:
+                uj = self._wall_velocity(j)
+            acc += (uj - ti.Vector([zi[0], zi[1], zi[2]])).outer_product(self._c(i, xij))
+
+    @ti.func
+    def _hg_coef(self, i, j, r2):
+        """The hourglass term's pair weight: Weiler's c F at rest density, symmetric in (i, j)."""
+        mu = ti.cast(self.visc.eta_of(i), ti.f64)
+        if self.state.phase[j] == FLUID:
+            mj = ti.cast(self.visc.eta_of(j), ti.f64)
+            mu = 2.0 * mu * mj / (mu + mj + 1e-30)
+        F = ti.cast(self.K.F(ti.sqrt(r2)), ti.f64)
+        return self.hourglass * self.viscous.d * mu * self.V / self.rho0 / (
+            r2 + self.viscous.eps) * F
+
+    @ti.func
+    def _velocity(self, j):
+        u = ti.Vector.zero(ti.f64, 3)
+        if self.state.phase[j] == FLUID:
+            zj = self.z[j]
+            u = ti.Vector([zj[0], zj[1], zj[2]])
+        else:
+            u = self._wall_velocity(j)
+        return u
+
+    @ti.func
+    def _hourglass_task(self, i, slot, j, xij, acc: ti.template()):
+        """acc[0:9] P_i = sum_j w x x^T (melt pairs halved), acc[9:12] sum_j w x, with
+        w = kappa_ij (e_ij . x_ij) and e_ij the pair's velocity difference less what the
+        gradients predict: (u_i - u_j) - (A_i + A_j) x_ij / 2, or - A_i x_ib at a wall."""
+        r2 = xij.norm_sqr()
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            x = ti.cast(xij, ti.f64)
+            zi = self.z[i]
+            fluid = self.state.phase[j] == FLUID
+            Aj = self.Ag[j] if fluid else self.Ag[i]  # a wall's: i's own
+            half = 0.5 if fluid else 1.0
+            e = ti.Vector([zi[0], zi[1], zi[2]]) - self._velocity(j) - 0.5 * (self.Ag[i] + Aj) @ x
+            w = self._hg_coef(i, j, x.norm_sqr()) * e.dot(x)  # as _adjoint_task: f64
             for a in ti.static(range(3)):
+                acc[9 + a] += w * x[a]
                 for b in ti.static(range(3)):
-                    for c in ti.static(range(3)):
-                        K[a, 3 * b + c] -= acc[12 + 9 * a + 3 * b + c]
-                    # 2 nu (A_ab + A_ba) g_b
-                    K[a, 3 * a + b] += 2.0 * nu * acc[9 + b]
-                    K[a, 3 * b + a] += 2.0 * nu * acc[9 + b]
-            self.Kmap[i] = K
-            self.surf_rhs[i] = K @ self._flat(self._square(acc, 39) @ Minv)
+                    acc[3 * a + b] += half * w * x[a] * x[b]
+
+    @ti.func
+    def _adjoint_task(self, b, j, xbj, acc: ti.template()):
+        """q_b = sum over melt i of T_i c_ib + w_ib x_ib (x_ib = -x_bj)."""
+        if self.state.phase[j] == FLUID:
+            x = -ti.cast(xbj, ti.f64)
+            zi = self.z[j]
+            e = ti.Vector([zi[0], zi[1], zi[2]]) - self._wall_velocity(b) - self.Ag[j] @ x
+            acc += self.T[j] @ self._c(j, -xbj) + self._hg_coef(j, b, x.norm_sqr()) * e.dot(x) * x
+
+    @ti.func
+    def _divergence_task(self, k, slot, j, xkj, acc: ti.template()):
+        """acc[0:3]: sum_j c_kj; acc[3:6]: -sum_i T_i c_ik + the walls' ghost terms."""
+        r2 = xkj.norm_sqr()
+        if r2 < self.K.H * self.K.H and r2 > 0.0:
+            c = self._c(k, xkj)
+            f = ti.Vector.zero(ti.f64, 3)
+            if self.state.phase[j] == FLUID:
+                f = -(self.T[j] @ self._c(j, -xkj))
+            elif self.shepard[j] > 0.0:
+                w = ti.cast(self.K.W(ti.sqrt(r2)), ti.f64)
+                f = w / self.shepard[j] * self.q[j]
+            for d in ti.static(range(3)):
+                acc[d] += c[d]
+                acc[3 + d] += f[d]
+
+    @ti.func
+    def _energy(self, n):
+        """eacc = L(z's velocity) in the strain-energy form (ghost sums set), with the
+        hourglass term: its gradient part rides on T (T_i + P_i), its pair part on hg."""
+        for slot in range(n):
+            i = self.rows.index[slot]
+            A = ti.Matrix.zero(ti.f64, 3, 3)
+            self.grid.for_each_listed(i, self._strain_task, A)
+            self.Ag[i] = A
+        for slot in range(n):
+            i = self.rows.index[slot]
+            A = self.Ag[i]
+            nu = ti.cast(self.visc.eta_of(i), ti.f64) / self.rho0
+            T = nu * (A + A.transpose())
+            acc = ti.Vector.zero(ti.f64, 12)
+            self.grid.for_each_listed(i, self._hourglass_task, acc)
+            self.T[i] = T + self._square(acc, 0)
+            self.hg[i] = ti.Vector([acc[9], acc[10], acc[11]])
+        for wslot in range(self.n_walls[None]):
+            b = self.wall_row[wslot]
+            acc = ti.Vector.zero(ti.f64, 3)
+            self.grid.for_each_neighbour(b, self._adjoint_task, acc)
+            self.q[b] = acc
+        for slot in range(n):
+            k = self.rows.index[slot]
+            acc = ti.Vector.zero(ti.f64, 6)
+            self.grid.for_each_listed(k, self._divergence_task, acc)
+            self.eacc[k] = self.T[k] @ ti.Vector([acc[0], acc[1], acc[2]]) + \
+                ti.Vector([acc[3], acc[4], acc[5]]) + self.hg[k]
 
     @ti.func
     def _shepard_task(self, b, j, xij, acc: ti.template()):
@@ -320,7 +452,8 @@ class CoupledStokes:
 
     @ti.func
     def _apply_task(self, i, slot, j, xij, acc: ti.template()):
-        """acc[0:3]: L's linear part, acc[3:6]: G(k), acc[6]: D(u) (linear parts)."""
+        """acc[0:3]: L's linear part (Weiler's; the strain-energy form adds its own), acc[3:6]:
+        G(k), acc[6]: D(u) (linear parts)."""
         cF = self.cF[i, slot]
         zi = self.z[i]
         ui = ti.Vector([zi[0], zi[1], zi[2]])
@@ -333,7 +466,8 @@ class CoupledStokes:
             gi = self._corrected(i, gV)
             g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
-                acc[d] += l[d]
+                if ti.static(not self.traction):
+                    acc[d] += l[d]
                 acc[3 + d] += g[d]
             acc[6] += (ui - uj).dot(gi)
         else:
@@ -344,7 +478,8 @@ class CoupledStokes:
             gi = self._corrected(i, gV)
             g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
-                acc[d] += l[d]
+                if ti.static(not self.traction):
+                    acc[d] += l[d]
                 acc[3 + d] += g[d]
             acc[6] += ui.dot(gi)
 
@@ -358,20 +493,16 @@ class CoupledStokes:
             self.ghost[b] = acc
         dt = self.dt[None]
         if ti.static(self.traction):
-            for slot in range(n):
-                i = self.rows.index[slot]
-                A = ti.Matrix.zero(ti.f64, 3, 3)
-                self.grid.for_each_neighbour(i, self._gradient_task, A)
-                self.grad[i] = A @ self.Minv[i]
+            self._energy(n)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 7)
             self.grid.for_each_listed(i, self._apply_task, acc)
             zi = self.z[i]
             if ti.static(self.traction):
-                corr = self.Kmap[i] @ self._flat(self.grad[i])
+                e = self.eacc[i]
                 for d in ti.static(range(3)):
-                    acc[d] += corr[d]
+                    acc[d] += e[d]
             out[i] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
                                 zi[2] - dt * acc[2] + dt * acc[5], self.dx * acc[6]])
 
@@ -463,9 +594,17 @@ class CoupledStokes:
             r = ti.Vector([v[0], v[1], v[2]]) - dt * g
             self.cg_x[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.cg_r[i] = r
-            self.cg_z[i] = self.Binv[i] @ r
+            self.cg_z[i] = self._inner_binv(i) @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         self._inner_blocks(n, 0)
+
+    @ti.func
+    def _inner_binv(self, i):
+        """The inner solve's preconditioner: the diagonal blocks of Weiler's operator, A~."""
+        m = self.Binv[i]
+        if ti.static(self.traction):
+            m = self.Binv_w[i]
+        return m
 
     @ti.func
     def _inner_blocks(self, n, which):
@@ -503,7 +642,7 @@ class CoupledStokes:
             self.cg_x[i] += alpha * self.cg_p[i]
             r = self.cg_r[i] - alpha * self.cg_q[i]
             self.cg_r[i] = r
-            self.cg_z[i] = self.Binv[i] @ r
+            self.cg_z[i] = self._inner_binv(i) @ r
         self._inner_blocks(n, 0)
 
     @ti.kernel
@@ -548,6 +687,7 @@ class CoupledStokes:
         self.dt[None] = dt
         for i in range(self.state.n):
             self.shepard[i] = 0.0
+            self.ghost[i] = ti.Vector.zero(ti.f64, 3)
             self.z[i] = ti.Vector.zero(ti.f64, 4)
         ti.loop_config(serialize=True)  # in storage order: every launch sums in the same order
         for _ in range(1):
@@ -566,17 +706,36 @@ class CoupledStokes:
             self.shepard[b] = s
         if ti.static(self.traction):
             self._surface_setup(n)
+            # the viscous term's constant part: L of zero melt velocities, walls at theirs
+            self.affine[None] = 1
+            self._energy(n)
+            self.affine[None] = 0
+            for slot in range(n):
+                i = self.rows.index[slot]
+                self.surf_rhs[i] = self.eacc[i]
         g = ti.Vector([gx, gy, gz])
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 13)
             self.grid.for_each_listed(i, self._setup_task, acc)
-            self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)).inverse()
+            weiler = (ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)).inverse()
             v = ti.cast(self.state.v[i], ti.f64) + dt * g
-            wall = ti.Vector([acc[9], acc[10], acc[11]])
-            mom = v - dt * wall
+            mom = v
             if ti.static(self.traction):
                 mom += dt * self.surf_rhs[i]
+                self.Binv_w[i] = weiler
+                e = ti.Vector.zero(ti.f64, 12)
+                self.grid.for_each_listed(i, self._energy_block_task, e)
+                a = -ti.Vector([e[0], e[1], e[2]])
+                nu = ti.cast(self.visc.eta_of(i), ti.f64) / self.rho0
+                # the hourglass term's pair part: Weiler's block scaled by its weight
+                blk = self._square(e, 3) + nu * (a.norm_sqr() * ti.Matrix.identity(ti.f64, 3)
+                                                 + a.outer_product(a)) \
+                    - self.hourglass * self._square(acc, 0)
+                self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) + dt * blk).inverse()
+            else:
+                self.Binv[i] = weiler
+                mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
             rho = ti.cast(self.state.rho[i], ti.f64)
             s = ti.cast(0.0, ti.f64)
             if ti.static(self.summation_source):
@@ -814,13 +973,35 @@ class CoupledStokes:
     # ------------------------------------------------------------------ diagnostics
     @ti.kernel
     def _wall_force(self, n: ti.i32) -> ti.types.vector(3, ti.f64):
-        ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
+        """-(the force on the flagged walls): the melt's momentum they take."""
+        if ti.static(self.traction):
+            # the strain-energy form: -dPhi/dv_b = -rho0 V (2 or 1) q_b with the whole
+            # strain (walls' velocities in it) of the solution
+            for slot in range(n):
+                i = self.rows.index[slot]
+                self.z[i] = self.X[i]
+            for wslot in range(self.n_walls[None]):
+                b = self.wall_row[wslot]
+                acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                self.grid.for_each_neighbour(b, self._ghost_task, acc)
+                self.ghost[b] = acc
+            self.affine[None] = 1
+            self._energy(n)
+            self.affine[None] = 0
         f = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+        ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.grid.for_each_listed(i, self._force_task, acc)
             f += ti.cast(self.state.m[i], ti.f64) * acc
+        if ti.static(self.traction):
+            ti.loop_config(serialize=True)
+            for wslot in range(self.n_walls[None]):
+                b = self.wall_row[wslot]
+                if self.force_flag[b] == 1:
+                    twice = 2.0 if self.shepard[b] > 0.0 else 1.0
+                    f += self.rho0 * self.V * twice * self.q[b]
         return f
 
     def wall_force(self, selected: np.ndarray) -> np.ndarray:
@@ -841,5 +1022,6 @@ class CoupledStokes:
             ub = vb
             if self.shepard[j] > 0.0:
                 ub = 2.0 * vb - self.ghost[j] / self.shepard[j]
-            acc += self.cF[i, slot] * (ui - ub).dot(xij) * xij
+            if ti.static(not self.traction):
+                acc += self.cF[i, slot] * (ui - ub).dot(xij) * xij
             acc -= x[3] * self._corrected(i, self.V * ti.cast(self.K.F(xij.norm()), ti.f64) * ti.cast(xij, ti.f64))

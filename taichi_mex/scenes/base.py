@@ -103,11 +103,12 @@ def lattice_block(lo_m, hi_m, spacing_m: float) -> np.ndarray:
     return np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
 
 
-def coupled_pla_defaults(spacing_mm: float, **run) -> dict:
+def coupled_pla_defaults(spacing_mm: float, dfsph: dict | None = None, **run) -> dict:
     """Defaults of a scene measured by the coupled solve: PLA melt at 1000 Pa s (Newtonian),
-    DFSPH with the coupled creeping solve at ``spacing_mm``; ``run``: further run options."""
+    DFSPH with the coupled creeping solve at ``spacing_mm``; ``dfsph``: further DFSPH options,
+    ``run``: further run options."""
     return {"run": {"scheme": "dfsph", "spacing_mm": spacing_mm, **run,
-                    "dfsph": {"creeping_solve": "coupled"}},
+                    "dfsph": {"creeping_solve": "coupled", **(dfsph or {})}},
             "material": {"name": "PLA melt", "density_kg_m3": 1240.0, "viscosity_pa_s": 1000.0,
                          "viscosity_model": "newtonian"}}
 
