@@ -33,20 +33,24 @@ def extrude(yz, dx=DX):
     return np.column_stack([X, YZ])
 
 
-def write_run(folder, yz, bead, frames=1, dx=DX, plate=True):
-    """A run folder with particles.h5 holding `frames` identical frames of these beads."""
+def write_run(folder, yz, bead, frames=1, dx=DX, plate=True, pos=None):
+    """A run folder with particles.h5 holding `frames` identical frames of these beads (or
+    of the 3D positions ``pos``, one bead)."""
     folder.mkdir(parents=True, exist_ok=True)
-    pos = extrude(yz, dx)
-    ids = np.tile(bead, round(LENGTH / dx))
+    if pos is None:
+        pos = extrude(yz, dx)
+        ids = np.tile(bead, round(LENGTH / dx))
+    else:
+        ids = np.zeros(len(pos), np.int32)
     config = {"spacing_m": dx, "section_point_m": [0.0, 0.0, 0.0],
               "section_direction": [1.0, 0.0, 0.0], "scene": "synthetic"}
     with h5py.File(folder / "particles.h5", "w") as h5:
         h5.attrs["config"] = json.dumps(config)
         h5.attrs["units"] = json.dumps({"position": "m"})
         if plate:
-            lo, hi = yz[:, 0].min() - 10 * dx, yz[:, 0].max() + 10 * dx
+            lo, hi = pos[:, 1].min() - 10 * dx, pos[:, 1].max() + 10 * dx
             ys = np.arange(lo, hi, dx) + dx / 2
-            xs = (np.arange(round(LENGTH / dx)) + 0.5) * dx - LENGTH / 2
+            xs = np.unique(pos[:, 0])
             X, Y, Z = np.meshgrid(xs, ys, -(np.arange(3) + 0.5) * dx, indexing="ij")
             h5["plate/position"] = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
         for i in range(frames):
@@ -212,3 +216,31 @@ def test_disordered_full_density_melt_reads_as_full(jitter):
     d = analysis.cross_section(frame, [0.0, 0.0, 2.5 * DX], [1.0, 0.0, 0.0], DX).to_dict()
     assert d["voids_count"] == 0 and d["void_fraction"] == 0.0
     assert d["mean_area_mm2"] == pytest.approx(20 * 5 * (DX * 1e3) ** 2, rel=0.05)
+
+
+def test_the_middle_of_a_bead_is_read_over_nine_sections(tmp_path):
+    """A bead 0.32 mm wide over one half of its length and 0.48 mm over the other: the
+    middle's nine sections report both widths as their smallest and largest and a mean
+    between them (what the summary's bead figures are); a uniform bead's mean is its one
+    section's figure."""
+    xs = (np.arange(40) + 0.5) * DX - 20 * DX
+    narrow = lattice_section(-0.16e-3, 0.16e-3, 0.0, 0.2e-3)
+    wide = lattice_section(-0.24e-3, 0.24e-3, 0.0, 0.2e-3)
+    pos = np.concatenate([np.column_stack([np.full(len(yz), x), yz])
+                          for x in xs for yz in [narrow if x < 0 else wide]])
+    report = analysis.analyse_run(write_run(tmp_path / "step", None, None, pos=pos))
+    mid = report["along_middle"]
+    assert mid["sections"] == analysis.ALONG_SECTIONS == 9
+    assert mid["coordinates_mm"][0] == pytest.approx(-0.39, abs=0.01)
+    assert mid["coordinates_mm"][-1] == pytest.approx(0.39, abs=0.01)
+    assert mid["width_min_mm"] == pytest.approx(0.32, abs=1e3 * DX / 2)
+    assert mid["width_max_mm"] == pytest.approx(0.48, abs=1e3 * DX / 2)
+    assert 0.36 < mid["mean_width_mm"] < 0.44
+    assert mid["height_min_mm"] == pytest.approx(0.2, abs=1e3 * DX / 2)
+
+    yz = lattice_section(-0.2e-3, 0.2e-3, 0.0, 0.2e-3)
+    report = analysis.analyse_run(write_run(tmp_path / "even", yz, np.zeros(len(yz))))
+    (sec,), mid = report["sections"], report["along_middle"]
+    assert mid["mean_width_mm"] == pytest.approx(sec["mean_width_mm"])
+    assert mid["width_min_mm"] == mid["width_max_mm"]
+    assert "along_middle" not in analysis.analyse_run(tmp_path / "even", along=0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from taichi_mex.app.parsing import Parser
-from taichi_mex.post.analysis import _mm, analyse_run
+from taichi_mex.post.analysis import ALONG_SECTIONS, _mm, analyse_run
 
 
 def main(argv: list[str]) -> int:
@@ -22,9 +22,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--direction", type=float, nargs=2, metavar=("DX", "DY"), default=None,
                    help="extrusion direction, the sections' normal (default: the run's, "
                    "e.g. 1 0 for beads along x)")
+    p.add_argument("--along", type=int, default=ALONG_SECTIONS, metavar="N",
+                   help="sections over the middle half of the melt's length whose mean, "
+                   f"smallest and largest figures are reported (default {ALONG_SECTIONS}; 0: none)")
     args = p.parse_args(argv)
+    if args.along < 0:
+        p.error(f"--along takes a count of sections, 0 or more, not {args.along}")
     direction = None if args.direction is None else [*args.direction, 0.0]
-    report = analyse_run(args.dir, frame=args.frame, positions=args.at, direction=direction)
+    report = analyse_run(args.dir, frame=args.frame, positions=args.at, direction=direction,
+                         along=args.along)
     f = report["frame"]
     print(f"frame {f['index']} of {f['count']} (t = {f['time_s']:.4g} s)")
     for sec in report["sections"]:
@@ -33,5 +39,13 @@ def main(argv: list[str]) -> int:
               f"mean W {_mm(sec['mean_width_mm'])}, H {_mm(sec['mean_height_mm'])}, necks side "
               f"{_mm(sec['mean_neck_side_mm'])}, layer {_mm(sec['mean_neck_layer_mm'])}, "
               f"void {100 * sec['void_fraction']:.2f} % -> {sec['png']}")
+    mid = report.get("along_middle")
+    if mid:
+        c = mid["coordinates_mm"]
+        print(f"over the middle ({mid['sections']} sections, {mid['axis']} = {c[0]:.3f}-{c[-1]:.3f} "
+              f"mm): W {_mm(mid['mean_width_mm'])} ({_mm(mid['width_min_mm'])}-"
+              f"{_mm(mid['width_max_mm'])}), H {_mm(mid['mean_height_mm'])} "
+              f"({_mm(mid['height_min_mm'])}-{_mm(mid['height_max_mm'])}), void "
+              f"{100 * mid['void_fraction']:.2f} %")
     print(f"results in {args.dir / 'mesostructure.json'}")
     return 0

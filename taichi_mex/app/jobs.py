@@ -297,13 +297,14 @@ def build_job(res: Resolved, out_dir) -> Job:
 # --------------------------------------------------------------------------- metrics
 #: columns of the results table besides the parameters: name -> meaning
 METRICS = {
-    "bead_width_mm": "mean bead width in the default cross-section (mesostructure.json)",
-    "bead_height_mm": "mean bead height in the default cross-section",
-    "bead_area_mm2": "mean bead cross-section area",
+    "bead_width_mm": "mean bead width over the sections of the melt's middle half "
+                     "(mesostructure.json along_middle; the default section where absent)",
+    "bead_height_mm": "mean bead height over the same sections",
+    "bead_area_mm2": "mean bead cross-section area over the same sections",
     "beads_count": "beads cut by the default cross-section",
     "neck_side_mm": "mean neck width between side-by-side beads",
     "neck_layer_mm": "mean neck width between stacked beads",
-    "void_fraction": "void area / (melt + void) area in the default cross-section",
+    "void_fraction": "void area / (melt + void) area, mean over the same sections",
     "voids_count": "enclosed voids in the default cross-section",
     "density_error_mean": "mean |rho/rho0 - 1| of interior melt at the end",
     "density_error_max": "largest |rho/rho0 - 1| of interior melt at the end",
@@ -328,11 +329,17 @@ def _number(value):
 
 
 def mesostructure_metrics(meso: dict | None) -> dict:
-    """Bead width/height/area, necks and voids of the default (first) cross-section."""
+    """Bead width/height/area and void fraction over the bead's middle (mean of the sections
+    there) where measured, else of the default (first) cross-section; necks and counts of
+    the default section."""
     if not isinstance(meso, dict):
         return {}
     sections = meso.get("sections")
     sec = sections[0] if isinstance(sections, list) and sections and isinstance(sections[0], dict) else meso
+    middle = meso.get("along_middle")
+    if isinstance(middle, dict):
+        sec = {**sec, **{k: middle[k] for k in ("mean_width_mm", "mean_height_mm",
+                                                 "mean_area_mm2", "void_fraction") if k in middle}}
     pick = {"bead_width_mm": ("mean_width_mm", "bead_width_mm", "width_mm"),
             "bead_height_mm": ("mean_height_mm", "bead_height_mm", "height_mm"),
             "bead_area_mm2": ("mean_area_mm2", "bead_area_mm2", "area_mm2"),

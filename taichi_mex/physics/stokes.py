@@ -66,16 +66,22 @@ dissipation of the velocity differences the gradients do not predict, damps it; 
 on linear fields, and inside the melt on quadratic ones (the pair's two gradients average to
 the chord's slope), so a Poiseuille profile does not feel it (``stokes_zero_energy_control``,
 default 1: Weiler's weight).
-Measured (2026-12-03, 2 cores): the coarse squeeze film 1.07 of Stefan's force (1.30 with the
-explicit traction correction this replaced, 1.52 without either); the extension filament's
-interior pressure 1.011 of Trouton's -mu e (1.03-1.09). Without the hourglass term the coarse
+Measured (2026-12-03, 2 cores): the extension filament's interior pressure 1.011 of
+Trouton's -mu e (1.03-1.09 with the explicit traction correction this replaced); the squeeze
+film at R / h = 5 0.73 / 0.85 / 0.92 of Stefan's force at 4 / 6 / 8 layers (0.77 / 0.91 /
+0.99 before) in 80-160 GMRES iterations (80-480): its ghost walls slip (below). Without the hourglass term the coarse
 film's solution was a zigzag of layers at 0.9 V and ~0 in turn, 0.36 of Stefan's force.
 The extension filament (0.125 mm, divergence-free steps) now reaches a strain of 0.5 with
 44 GMRES iterations a step and no halving (the explicit correction stalled at 0.45), the mid
 radius within 0.6 % of Trouton's to 0.4; there the melt lets go of the stretched end pieces.
 Two things keep it out of prints for now, both measured: Adami's ghost walls slip more under
 it (bore flow 6.4 / 3.3 % of u_max at 4 / 6 per radius against 1.7 % with Weiler's sum, so
-the bore scene runs Weiler's), and the bundled bead (draft) runs to its end without a halving
+the bore scene runs Weiler's: the profile sits 0.08 u_max over Poiseuille's throughout; the
+ghost's Shepard average stands for the melt's velocity at the wall particle's mirror image,
+which it is for the first wall layer only, yet continuing the melt's velocity linearly to the
+deeper layers, Morris, Fox & Zhu's (1997) ratio with the surface half a spacing under the
+nearest melt, moved the squeeze film's force by 0.3 % and made the bore's staircase worse,
+13 %: tried, not kept), and the bundled bead (draft) runs to its end without a halving
 but comes out 1.49x the slicer's width with melt 0.12 mm over the gap behind the nozzle and
 kernel sums down to 0.56 rho0 at its surface, at 177 GMRES / 1,790 inner iterations a step
 (47 / 249 with Weiler's) and 8.4x the wall time.

@@ -105,6 +105,19 @@ def _sections(meso: dict | None, plan, config) -> str:
             ["mean neck between side-by-side beads (mm)", sec.get("mean_neck_side_mm")],
             ["mean neck between layers (mm)", sec.get("mean_neck_layer_mm")],
             ["void fraction", sec.get("void_fraction")], ["voids", sec.get("voids_count")]]))
+    mid = meso.get("along_middle")
+    if mid:
+        c = mid["coordinates_mm"]
+        law = rounded_rectangle_width_mm(mid["mean_area_mm2"], gap) if gap else None
+        parts.append(f"<h3>Over the middle: {mid['sections']} sections, {mid['axis']} = "
+                     f"{_num(c[0])}-{_num(c[-1])} mm</h3>")
+        parts.append(_table([
+            ["width mm: mean, smallest, largest", mid["mean_width_mm"], mid["width_min_mm"],
+             mid["width_max_mm"]],
+            ["height mm", mid["mean_height_mm"], mid["height_min_mm"], mid["height_max_mm"]],
+            ["area mm²", mid["mean_area_mm2"], mid["area_min_mm2"], mid["area_max_mm2"]],
+            ["rounded-rectangle width mm (mean area)", law, None, None],
+            ["void fraction", mid["void_fraction"], None, mid["void_fraction_max"]]]))
     if gap:
         parts.append(f"<p class='sub'>Law: W = A/g + (1 − π/4) g with the bead's own area A and "
                      f"the layer height g = {gap:.3g} mm (the slicer's rounded rectangle; Comminal "

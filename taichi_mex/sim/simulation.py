@@ -669,7 +669,13 @@ class Simulation:
         summary.update(getattr(self, "bead_metrics", {}) or {})
         meso = getattr(self, "mesostructure", None)
         if meso and meso.get("sections"):
-            first = meso["sections"][0]
+            # the mean over the bead's middle where measured (post/analysis.py: one section
+            # is not a reproducible measure), else the default section
+            first = meso.get("along_middle") or meso["sections"][0]
+            if "width_min_mm" in first:
+                summary["bead_width_range_mm"] = [first["width_min_mm"], first["width_max_mm"]]
+                summary["bead_height_range_mm"] = [first["height_min_mm"], first["height_max_mm"]]
+                summary["bead_sections"] = first["sections"]
             summary["bead_width_mm"] = first.get("mean_width_mm")
             summary["bead_height_mm"] = first.get("mean_height_mm")
             for key in ("top_min_mm", "top_median_mm", "top_max_mm"):
