@@ -92,10 +92,7 @@ class BoreFlowOptions:
 
 
 def _defaults(_options) -> dict:
-    # the measured third has no free surface: the scene checks the wall and the viscous
-    # operator prints run with, Weiler's (the strain-energy form's ghost walls slip: 6.4 / 3.3 %
-    # of u_max at 4 / 6 per radius against 1.7 %, physics/stokes.py)
-    return coupled_pla_defaults(0.025, dfsph={"stokes_surface_traction": False})
+    return coupled_pla_defaults(0.025)
 
 
 register(SceneEntry("bore-flow", "melt falling through the nozzle bore (Poiseuille)",
