@@ -192,13 +192,13 @@ def _strand_area(r) -> float:
 
 
 STRAND = [("material area / commanded", ratio_to("bead_material_area_mm2", _strand_area, "{:.4f}")),
-          ("section W mm / rounded rectangle", ratio_to(
+          ("W mm (nine sections) / rounded rectangle", ratio_to(
               "bead_width_mm", lambda r: slicer_width_mm(_strand_area(r), _strand_of(r)[0]))),
-          ("section H mm / gap", ratio_to("bead_height_mm", lambda r: _strand_of(r)[0])),
+          ("H mm (nine sections) / gap", ratio_to("bead_height_mm", lambda r: _strand_of(r)[0])),
           ("p99 W / H mm", lambda r: f"{r['bead_width_p99_mm']:.3f} / {r['bead_height_p99_mm']:.3f}"
            if r.get("bead_width_p99_mm") else ""),
           # issue 15's flat-top test: every column of the middle half within 10 % of the gap,
-          # their median within 5 %
+          # their median within 5 % (over the nine sections: lowest, mean median, highest)
           ("top of the middle half, min / median / max vs gap", lambda r: " / ".join(
               f"{r['bead_' + k] / _strand_of(r)[0] - 1:+.0%}"
               for k in ("top_min_mm", "top_median_mm", "top_max_mm"))

@@ -329,17 +329,23 @@ class CoupledStokes:
         return u
 
     @ti.func
+    def _velocity(self, j):
+        """z's velocity at melt particle j, or wall j's in the strain."""
+        u = ti.Vector.zero(ti.f64, 3)
+        if self.state.phase[j] == FLUID:
+            zj = self.z[j]
+            u = ti.Vector([zj[0], zj[1], zj[2]])
+        else:
+            u = self._wall_velocity(j)
+        return u
+
+    @ti.func
     def _strain_task(self, i, slot, j, xij, acc: ti.template()):
         r2 = xij.norm_sqr()
         if r2 < self.K.H * self.K.H and r2 > 0.0:
             zi = self.z[i]
-            uj = ti.Vector.zero(ti.f64, 3)
-            if self.state.phase[j] == FLUID:
-                zj = self.z[j]
-                uj = ti.Vector([zj[0], zj[1], zj[2]])
-            else:
-                uj = self._wall_velocity(j)
-            acc += (uj - ti.Vector([zi[0], zi[1], zi[2]])).outer_product(self._c(i, xij))
+            ui = ti.Vector([zi[0], zi[1], zi[2]])
+            acc += (self._velocity(j) - ui).outer_product(self._c(i, xij))
 
     @ti.func
     def _hg_coef(self, i, j, r2):
@@ -351,16 +357,6 @@ class CoupledStokes:
         F = ti.cast(self.K.F(ti.sqrt(r2)), ti.f64)
         return self.hourglass * self.viscous.d * mu * self.V / self.rho0 / (
             r2 + self.viscous.eps) * F
-
-    @ti.func
-    def _velocity(self, j):
-        u = ti.Vector.zero(ti.f64, 3)
-        if self.state.phase[j] == FLUID:
-            zj = self.z[j]
-            u = ti.Vector([zj[0], zj[1], zj[2]])
-        else:
-            u = self._wall_velocity(j)
-        return u
 
     @ti.func
     def _hourglass_task(self, i, slot, j, xij, acc: ti.template()):
