@@ -532,6 +532,11 @@ def _analyse(out_dir: Path, record: dict, scene=None):
 
 
 # --------------------------------------------------------------------------- isolation
+#: how long a job process is given to stop after Ctrl-C (it ends its step, writes its frames
+#: and its record) before it is killed, or before a sweep writes its table without it
+STOP_GRACE_S = 60.0
+
+
 def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float | None = None,
                      slots_by_host: dict | None = None) -> dict:
     """Run one job in a fresh ``python -m taichi_mex.app.jobs`` process and return its record.
@@ -563,7 +568,7 @@ def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float |
             timed_out = True
             proc.send_signal(signal.SIGINT)  # the simulation stops after its step, keeps frames
             try:
-                proc.wait(timeout=60)
+                proc.wait(timeout=STOP_GRACE_S)
             except subprocess.TimeoutExpired:
                 proc.kill()
         finally:

@@ -469,6 +469,8 @@ def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int
             _run_on_dask(study, runnable, runs_dir, outcome, scheduler=scheduler, workers=workers,
                          threads_per_run=threads_per_run, timeout_s=timeout_s, progress=progress,
                          echo=echo)
+            if outcome.interrupted:
+                _await_records(runnable, runs_dir)
     finally:  # whatever happened, the table shows every run as it stands
         outcome.paths = write_results(study, out_dir)
     rows = collect_rows(study, runs_dir)
@@ -485,6 +487,19 @@ def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int
         [v for k, v in outcome.paths.items() if k.startswith("plot ")])
     outcome.wall_time_s = time.perf_counter() - t0
     return outcome
+
+
+def _await_records(runs, runs_dir: Path, grace_s: float = jobs.STOP_GRACE_S) -> None:
+    """After Ctrl-C: wait until no run's record says it is running, so that the table shows
+    the runs the interruption stopped as interrupted. Their job processes take Ctrl-C too and
+    write their records after their step, possibly after the Dask cluster is closed (under
+    load the table once showed such a run as pending, its record as interrupted)."""
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline:
+        if not any((jobs.read_record(runs_dir / r.name) or {}).get("status") == "running"
+                   for r in runs):
+            return
+        time.sleep(0.2)
 
 
 def _write_index(study: Study, out_dir: Path) -> None:
