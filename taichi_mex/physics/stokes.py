@@ -75,7 +75,7 @@ The extension filament (0.125 mm, divergence-free steps) now reaches a strain of
 44 GMRES iterations a step and no halving (the explicit correction stalled at 0.45), the mid
 radius within 0.6 % of Trouton's to 0.4; there the melt lets go of the stretched end pieces.
 Two things keep it out of prints for now, both measured: Adami's ghost walls slip more under
-it (bore flow 6.4 / 3.3 / 2.7 % of u_max at 4 / 6 / 8 per radius against 1.7 / 4.6 % with
+it (bore flow 6.4 / 4.9 / 2.7 % of u_max at 4 / 6 / 8 per radius against 1.7 / 4.6 % with
 Weiler's sum, which does not converge at 8 in 20,000 iterations where this form takes 600;
 at 4 the profile sits 0.08 u_max over Poiseuille's throughout; the
 ghost's Shepard average stands for the melt's velocity at the wall particle's mirror image,
