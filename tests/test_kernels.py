@@ -70,3 +70,38 @@ def test_lattice_moments(taichi_f64, kind, factor, tol):
     np.testing.assert_allclose(g.sum(axis=0), 0.0, atol=1e-12)
     moment = np.einsum("ka,kb->ab", pts, g)  # (x_j - x_i) (x) grad_i W_ij
     np.testing.assert_allclose(moment, np.eye(3), atol=tol)
+
+
+@pytest.mark.parametrize("kind", ["cubic", "wendland_c2"])
+def test_a_kernel_keeps_its_arguments_precision(kind):
+    """The coupled solve evaluates kernels in f64 inside an f32 run: W and F must not round
+    through the default precision (Taichi warned 'Assign may lose precision' on every such
+    compile, and the gradients carried 1e-7 relative errors into the f64 solve)."""
+    from taichi_mex.backend import ti
+
+    backend.init("cpu", "f32")
+    try:
+        k = Kernel(kind, 2.0)
+        r = np.array([0.1234567890123, 0.61, 0.987654321, 1.4321, 1.97])
+        rs = ti.field(ti.f64, shape=len(r))
+        w = ti.field(ti.f64, shape=len(r))
+        f = ti.field(ti.f64, shape=len(r))
+        rs.from_numpy(r)
+
+        @ti.kernel
+        def run():
+            for i in rs:
+                w[i] = k.W(rs[i])
+                f[i] = k.F(rs[i])
+
+        run()
+        # the kernel's constants are the run's (f32) numbers, a common factor; what must
+        # not happen is each value rounded to f32 on its way out
+        for values in (w.to_numpy(), f.to_numpy()):
+            assert np.all(values.astype(np.float32).astype(np.float64) != values)
+        assert np.allclose(w.to_numpy(), k.W_np(r), rtol=1e-6, atol=0)
+        h = 1e-6  # F = (dW/dr) / r, by central differences
+        dw = (k.W_np(r + h) - k.W_np(r - h)) / (2 * h) / r
+        assert np.allclose(f.to_numpy(), dw, rtol=1e-6, atol=0)
+    finally:
+        backend.init("cpu", "f64")

@@ -270,6 +270,17 @@ CASES = {
             ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
              f"{r.get('time_step_halvings', '')}")],
         folder="strands", tag="coupled"),
+    "strands_convergence": Case(
+        "the bundled bead (0.2 mm gap, 0.45 mm line) at draft / standard / fine, coupled solve "
+        "without the free surface's traction: does the section converge on the rounded rectangle?",
+        [strand_run(0.2, 0.45, res) for res in ("draft", "standard", "fine")],
+        [strand_run(0.2, 0.45, 0.1)],
+        COMMON + STRAND + DENSITY[:2] + [
+            ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
+             f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
+            ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
+             f"{r.get('time_step_halvings', '')}")],
+        folder="strands", tag="convergence"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "
         "bead's shape error relative to the finest run",
@@ -564,8 +575,8 @@ def main(argv=None) -> int:
         return 0
     case = CASES[args.case]
     if args.commands:
-        for _, a in case.quick if args.quick else case.runs:
-            print(shown(taichi_command([str(x).replace("{out}", "OUT") for x in a])))
+        for run in case.quick if args.quick else case.runs:
+            print(shown(taichi_command([str(x).replace("{out}", "OUT") for x in run[1]])))
         return 0
     with tempfile.TemporaryDirectory(prefix=f"validation-{args.case}-") as tmp:
         out_root = (args.out or Path(tmp)).resolve()

@@ -39,7 +39,7 @@ class Kernel:
     @ti.func
     def W(self, r):
         q = r / self.H
-        w = 0.0
+        w = q * 0.0  # r's precision (the coupled solve evaluates in f64)
         if ti.static(self.kind == "cubic"):
             if q <= 0.5:
                 w = self.sigma * (6.0 * q * q * (q - 1.0) + 1.0)
@@ -54,7 +54,7 @@ class Kernel:
     def F(self, r):
         """(dW/dr)/r: multiply by the separation vector to get grad W."""
         q = r / self.H
-        f = 0.0
+        f = q * 0.0  # r's precision (the coupled solve evaluates in f64)
         if ti.static(self.kind == "cubic"):
             if q <= 0.5:
                 f = self.grad_sigma * (3.0 * q - 2.0) / (self.H * self.H)
