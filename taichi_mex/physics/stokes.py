@@ -130,7 +130,8 @@ class CoupledStokes:
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
                        "surf_rhs",
-                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart")
+                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total",
+                       "dots_out")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
                  spacing_m: float, rows, opts):
@@ -189,6 +190,8 @@ class CoupledStokes:
         self.part = ti.field(ti.f64, shape=(self.m + 1, self.n_blocks))
         self.coef = ti.field(ti.f64, shape=self.m + 1)
         self.out3 = ti.Vector.field(3, ti.f64, shape=())
+        self.total = ti.field(ti.f64, shape=())
+        self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
         # GMRES keeps them, the preconditioner being an inner iterative solve) and the inner
@@ -580,9 +583,9 @@ class CoupledStokes:
             acc += f * cF * pi.dot(xij) * xij
 
     @ti.kernel
-    def _inner_begin(self, n: ti.i32, j: ti.i32):
+    def _inner_begin(self, n: ti.i32, j: ti.i32) -> ti.f64:
         """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
-        r = rhs, cg_z = B^-1 r, p = 0; cg_part[0]: r . B^-1 r per block."""
+        r = rhs, cg_z = B^-1 r, p = 0; returns r . B^-1 r."""
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, i]
@@ -599,7 +602,7 @@ class CoupledStokes:
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-        self._inner_blocks(n, 0)
+        return self._inner_blocks(n, 0)
 
     @ti.func
     def _inner_binv(self, i):
@@ -611,7 +614,7 @@ class CoupledStokes:
 
     @ti.func
     def _inner_blocks(self, n, which):
-        """cg_part[which, block]: r . cg_z (which 0) or p . q (which 1), block by block."""
+        """r . cg_z (which 0) or p . q (which 1): block by block, then the blocks in order."""
         nb = (n + self.block - 1) // self.block
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
@@ -622,10 +625,23 @@ class CoupledStokes:
                 else:
                     s += self.cg_p[i].dot(self.cg_q[i])
             self.cg_part[which, b] = s
+        return self._in_order(self.cg_part, which, nb)
+
+    @ti.func
+    def _in_order(self, part: ti.template(), row, nb):
+        """sum_b part[row, b] in block order, the same sum on every run, on any device (the
+        host's to_numpy of the partials cost 0.34 ms a call, a third of the bead's solve)."""
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            s = ti.cast(0.0, ti.f64)
+            for b in range(nb):
+                s += part[row, b]
+            self.total[None] = s
+        return self.total[None]
 
     @ti.kernel
-    def _inner_direction(self, n: ti.i32, beta: ti.f64):
-        """p = cg_z + beta p; q = A~ p; cg_part[1]: p . q per block."""
+    def _inner_direction(self, n: ti.i32, beta: ti.f64) -> ti.f64:
+        """p = cg_z + beta p; q = A~ p; returns p . q."""
         for slot in range(n):
             i = self.rows.index[slot]
             self.cg_p[i] = self.cg_z[i] + beta * self.cg_p[i]
@@ -635,18 +651,18 @@ class CoupledStokes:
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.grid.for_each_listed(i, self._inner_task, acc)
             self.cg_q[i] = self.cg_p[i] - dt * acc
-        self._inner_blocks(n, 1)
+        return self._inner_blocks(n, 1)
 
     @ti.kernel
-    def _inner_step(self, n: ti.i32, alpha: ti.f64):
-        """x += alpha p, r -= alpha q, cg_z = B^-1 r; cg_part[0]: r . cg_z per block."""
+    def _inner_step(self, n: ti.i32, alpha: ti.f64) -> ti.f64:
+        """x += alpha p, r -= alpha q, cg_z = B^-1 r; returns r . cg_z."""
         for slot in range(n):
             i = self.rows.index[slot]
             self.cg_x[i] += alpha * self.cg_p[i]
             r = self.cg_r[i] - alpha * self.cg_q[i]
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
-        self._inner_blocks(n, 0)
+        return self._inner_blocks(n, 0)
 
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32):
@@ -659,24 +675,18 @@ class CoupledStokes:
             self.Zb[j, i] = z
         self._apply(n, self.w)
 
-    def _inner_sum(self, n: int, which: int) -> float:
-        return float(self._partials(self.cg_part, n)[which])
-
     def _block_triangular(self, n: int, j: int) -> int:
         """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
         diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
         iterations."""
-        self._inner_begin(n, j)
-        rz = rz0 = self._inner_sum(n, 0)
+        rz = rz0 = self._inner_begin(n, j)
         beta = 0.0
         it = 0
         while rz > 0.0 and it < self.inner_max and rz > self.inner_tol ** 2 * rz0:
-            self._inner_direction(n, beta)
-            pq = self._inner_sum(n, 1)
+            pq = self._inner_direction(n, beta)
             if pq <= 0.0:
                 break  # A~ is positive definite; only rounding at convergence gets here
-            self._inner_step(n, rz / pq)
-            rz, rz_old = self._inner_sum(n, 0), rz
+            rz, rz_old = self._inner_step(n, rz / pq), rz
             beta = rz / rz_old
             it += 1
         self._inner_finish(n, j)
@@ -809,8 +819,8 @@ class CoupledStokes:
         self._apply(n, self.w)
 
     @ti.kernel
-    def _dots(self, n: ti.i32, j: ti.i32):
-        """part[l, block] = sum over the block of v_l . w, l = 0..j."""
+    def _dots(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
+        """coef_l = out_l = v_l . w, l = 0..j (block by block, then the blocks in order)."""
         nb = (n + self.block - 1) // self.block
         for l, b in ti.ndrange(j + 1, nb):
             s = ti.cast(0.0, ti.f64)
@@ -818,6 +828,13 @@ class CoupledStokes:
                 i = self.rows.index[slot]
                 s += self.basis[l, i].dot(self.w[i])
             self.part[l, b] = s
+        ti.loop_config(serialize=True)
+        for l in range(j + 1):
+            s = ti.cast(0.0, ti.f64)
+            for b in range(nb):
+                s += self.part[l, b]
+            self.coef[l] = s
+            out[l] = s
 
     @ti.kernel
     def _orthogonalise(self, n: ti.i32, j: ti.i32):
@@ -878,15 +895,10 @@ class CoupledStokes:
                                          ti.cast(x[2], float)])
             kappa[i] = ti.cast(x[3], float)
 
-    def _partials(self, part, n: int) -> np.ndarray:
-        """Each row of a (rows, blocks) field of block partial sums, summed over the blocks
-        that hold the n rows, in block order (the same sum on every run)."""
-        nb = (n + self.block - 1) // self.block
-        return part.to_numpy()[:, :nb].sum(axis=1)
-
     def _dot_all(self, n: int, j: int) -> np.ndarray:
-        self._dots(n, j)
-        return self._partials(self.part, n)[: j + 1]
+        """v_l . w for l = 0..j, also left in coef for _orthogonalise."""
+        self._dots(n, j, self.dots_out)
+        return self.dots_out[: j + 1].copy()
 
     def _set_coef(self, values: np.ndarray) -> None:
         buf = np.zeros(self.m + 1)
@@ -928,7 +940,6 @@ class CoupledStokes:
                 h = np.zeros(j + 2)
                 for _ in range(2):  # classical Gram-Schmidt, twice (Giraud et al. 2005)
                     c = self._dot_all(n, j)
-                    self._set_coef(c)
                     self._orthogonalise(n, j)
                     h[: j + 1] += c
                 h[j + 1] = breakdown = float(np.sqrt(self._sum(n, False)))
@@ -956,8 +967,8 @@ class CoupledStokes:
         return StokesResult(bool(done), iterations, float(rel), float(rmax), mean, inner)
 
     @ti.kernel
-    def _block_sums(self, n: ti.i32, continuity: ti.template()):
-        """part[0, block]: sum of |w|^2 over the block, or of |w_k| (the continuity rows)."""
+    def _block_sums(self, n: ti.i32, continuity: ti.template()) -> ti.f64:
+        """sum of |w|^2, or of |w_k| (the continuity rows): block by block, then in order."""
         nb = (n + self.block - 1) // self.block
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
@@ -968,10 +979,10 @@ class CoupledStokes:
                 else:
                     s += self.w[i].dot(self.w[i])
             self.part[0, b] = s
+        return self._in_order(self.part, 0, nb)
 
     def _sum(self, n: int, continuity: bool) -> float:
-        self._block_sums(n, continuity)
-        return float(self._partials(self.part, n)[0])
+        return float(self._block_sums(n, continuity))
 
     # ------------------------------------------------------------------ diagnostics
     @ti.kernel

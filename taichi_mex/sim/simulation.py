@@ -96,8 +96,9 @@ class Simulation:
             raise UserInputError(
                 f"This run would need about {self.estimate['steps_estimate']:,} time steps: the "
                 f"{worst} limit holds dt at {limits[worst]:.3g} s over "
-                f"{self.estimate['simulated_time_s']:.3g} s. That is days of computing; {advice} "
-                f"(or raise RunOptions.max_steps, now {self.run_opts.max_steps:,}).")
+                f"{self.estimate['simulated_time_s']:.3g} s, more than the run's limit of "
+                f"{self.run_opts.max_steps:,} steps (RunOptions.max_steps); {advice}, or raise "
+                "the limit.")
         self._built = False
         self.skipped: list[dict] = []
         self.resumed = False
