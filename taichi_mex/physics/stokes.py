@@ -819,8 +819,9 @@ class CoupledStokes:
         self._apply(n, self.w)
 
     @ti.kernel
-    def _dots(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1)):
-        """coef_l = out_l = v_l . w, l = 0..j (block by block, then the blocks in order)."""
+    def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1)) -> ti.f64:
+        """One pass of classical Gram-Schmidt in one launch: out_l = v_l . w for l = 0..j
+        (block by block, then the blocks in order), w -= sum_l out_l v_l; returns |w|^2."""
         nb = (n + self.block - 1) // self.block
         for l, b in ti.ndrange(j + 1, nb):
             s = ti.cast(0.0, ti.f64)
@@ -835,9 +836,22 @@ class CoupledStokes:
                 s += self.part[l, b]
             self.coef[l] = s
             out[l] = s
+        self._orthogonalise(n, j)
+        return self._norm2(n)
 
-    @ti.kernel
-    def _orthogonalise(self, n: ti.i32, j: ti.i32):
+    @ti.func
+    def _norm2(self, n):
+        nb = (n + self.block - 1) // self.block
+        for b in range(nb):
+            s = ti.cast(0.0, ti.f64)
+            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
+                i = self.rows.index[slot]
+                s += self.w[i].dot(self.w[i])
+            self.part[0, b] = s
+        return self._in_order(self.part, 0, nb)
+
+    @ti.func
+    def _orthogonalise(self, n, j):
         """w -= sum_l coef_l v_l."""
         for slot in range(n):
             i = self.rows.index[slot]
@@ -895,11 +909,6 @@ class CoupledStokes:
                                          ti.cast(x[2], float)])
             kappa[i] = ti.cast(x[3], float)
 
-    def _dot_all(self, n: int, j: int) -> np.ndarray:
-        """v_l . w for l = 0..j, also left in coef for _orthogonalise."""
-        self._dots(n, j, self.dots_out)
-        return self.dots_out[: j + 1].copy()
-
     def _set_coef(self, values: np.ndarray) -> None:
         buf = np.zeros(self.m + 1)
         buf[: len(values)] = values
@@ -939,10 +948,9 @@ class CoupledStokes:
                     self._arnoldi_apply(n, j)
                 h = np.zeros(j + 2)
                 for _ in range(2):  # classical Gram-Schmidt, twice (Giraud et al. 2005)
-                    c = self._dot_all(n, j)
-                    self._orthogonalise(n, j)
-                    h[: j + 1] += c
-                h[j + 1] = breakdown = float(np.sqrt(self._sum(n, False)))
+                    norm2 = self._gram_schmidt(n, j, self.dots_out)
+                    h[: j + 1] += self.dots_out[: j + 1]
+                h[j + 1] = breakdown = float(np.sqrt(norm2))
                 if breakdown > 0.0:
                     self._store(n, j + 1, breakdown)
                 for l in range(j):  # earlier Givens rotations
