@@ -130,7 +130,7 @@ class CoupledStokes:
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
                        "surf_rhs",
-                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total",
+                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "pq", "alpha",
                        "dots_out")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
@@ -191,6 +191,8 @@ class CoupledStokes:
         self.coef = ti.field(ti.f64, shape=self.m + 1)
         self.out3 = ti.Vector.field(3, ti.f64, shape=())
         self.total = ti.field(ti.f64, shape=())
+        self.pq = ti.field(ti.f64, shape=())  # the inner iteration's p . q and step length
+        self.alpha = ti.field(ti.f64, shape=())
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
@@ -640,8 +642,11 @@ class CoupledStokes:
         return self.total[None]
 
     @ti.kernel
-    def _inner_direction(self, n: ti.i32, beta: ti.f64) -> ti.f64:
-        """p = cg_z + beta p; q = A~ p; returns p . q."""
+    def _inner_iteration(self, n: ti.i32, beta: ti.f64, rz: ti.f64) -> ti.types.vector(2, ti.f64):
+        """One conjugate-gradient iteration in one launch (a launch and a wait cost about as
+        much as the sums on a bead's few thousand rows): p = cg_z + beta p, q = A~ p,
+        alpha = rz / p.q, x += alpha p, r -= alpha q, cg_z = B^-1 r; returns (r . cg_z, p . q).
+        p . q <= 0 (rounding at convergence: A~ is positive definite) leaves x and r alone."""
         for slot in range(n):
             i = self.rows.index[slot]
             self.cg_p[i] = self.cg_z[i] + beta * self.cg_p[i]
@@ -651,18 +656,21 @@ class CoupledStokes:
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.grid.for_each_listed(i, self._inner_task, acc)
             self.cg_q[i] = self.cg_p[i] - dt * acc
-        return self._inner_blocks(n, 1)
-
-    @ti.kernel
-    def _inner_step(self, n: ti.i32, alpha: ti.f64) -> ti.f64:
-        """x += alpha p, r -= alpha q, cg_z = B^-1 r; returns r . cg_z."""
+        self._inner_blocks(n, 1)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            pq = self.total[None]
+            self.pq[None] = pq
+            self.alpha[None] = rz / pq if pq > 0.0 else 0.0
         for slot in range(n):
             i = self.rows.index[slot]
+            alpha = self.alpha[None]
             self.cg_x[i] += alpha * self.cg_p[i]
             r = self.cg_r[i] - alpha * self.cg_q[i]
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
-        return self._inner_blocks(n, 0)
+        self._inner_blocks(n, 0)
+        return ti.Vector([self.total[None], self.pq[None]])
 
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32):
@@ -683,10 +691,10 @@ class CoupledStokes:
         beta = 0.0
         it = 0
         while rz > 0.0 and it < self.inner_max and rz > self.inner_tol ** 2 * rz0:
-            pq = self._inner_direction(n, beta)
+            rz_new, pq = self._inner_iteration(n, beta, rz).to_numpy()
             if pq <= 0.0:
                 break  # A~ is positive definite; only rounding at convergence gets here
-            rz, rz_old = self._inner_step(n, rz / pq), rz
+            rz, rz_old = float(rz_new), rz
             beta = rz / rz_old
             it += 1
         self._inner_finish(n, j)
