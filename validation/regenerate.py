@@ -237,6 +237,23 @@ CASES = {
                   ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
                   ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
                   ("virtual origin s", num("front_virtual_origin_s", "{:.2f}"))]),
+    "collapse_coupled": Case(
+        "the same cylinder with the coupled creeping solve (viscous stress and pressure in one "
+        "solve, the free surface's traction, nothing deleted or clamped)",
+        [(f"{dx} mm, {t} s, coupled", scene("collapse", *COLLAPSE, "--spacing-mm", dx, "--until", t,
+                                             "--creeping-solve", "coupled"))
+         for dx, t in ((0.5, 30), (0.4, 30))],
+        [("0.8 mm, 6 s, coupled", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6,
+                                         "--creeping-solve", "coupled"))],
+        COMMON + [("coefficient ratio K^(1/8) / Huppert", num("front_coefficient_ratio", "{:.3f}")),
+                  ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
+                  ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
+                  ("virtual origin s", num("front_virtual_origin_s", "{:.2f}")),
+                  ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
+                   f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
+                  ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
+                   f"{r.get('time_step_halvings', '')}")],
+        folder="collapse", tag="coupled"),
     "thermal_beam": Case(
         "the seed paper's aluminium beam, 50 s: centre-line temperature against the analytic "
         "series (a) and a finite-volume solution with losses (b)",
