@@ -280,6 +280,32 @@ dt_factor = [1.0, 0.01]   # the second run takes minutes: it is still running at
     assert sorted(r["status"] for r in rows) == ["done", "interrupted"]
 
 
+def test_after_ctrl_c_a_run_started_without_a_record_is_interrupted(tmp_path):
+    """The race behind two CI failures, without timing: a run this sweep started whose job
+    process wrote no record (Ctrl-C during its start-up) is written as interrupted once the
+    grace is over; a run of another batch, or one with a final record, is left alone."""
+    from types import SimpleNamespace
+
+    from taichi_mex.app import jobs
+    from taichi_mex.app.sweep import _await_records
+
+    runs = [SimpleNamespace(name=n, params={"k": i}) for i, n in enumerate("abcd")]
+    for r, batch in zip(runs, ["now", "now", "earlier", None]):
+        (tmp_path / r.name).mkdir()
+        if batch is not None:
+            jobs.write_json_atomic(tmp_path / r.name / jobs.PARAMS_FILE, {"params": r.params, "batch": batch})
+    jobs.write_json_atomic(tmp_path / "b" / jobs.JOB_FILE, {"run": "b", "status": "done"})
+    jobs.write_json_atomic(tmp_path / "c" / jobs.JOB_FILE, {"run": "c", "status": "running"})
+    said = []
+    _await_records(runs, tmp_path, "now", echo=said.append, grace_s=0.3)
+    assert jobs.read_record(tmp_path / "a")["status"] == "interrupted"
+    assert jobs.read_record(tmp_path / "a")["params"] == {"k": 0}
+    assert jobs.read_record(tmp_path / "b")["status"] == "done"
+    assert jobs.read_record(tmp_path / "c")["status"] == "running"  # another sweep's
+    assert jobs.read_record(tmp_path / "d") is None  # never started
+    assert said == ["waiting up to 0 s for 1 interrupted run(s) to stop"]
+
+
 @pytest.mark.parametrize("example", sorted(p.name for p in (REPO / "examples").glob("study_*.toml")))
 def test_example_studies_are_valid(example, tmp_path, capsys):
     assert main(["sweep", str(REPO / "examples" / example), "--dry-run", "--out", str(tmp_path)]) == 0

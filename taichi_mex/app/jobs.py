@@ -538,13 +538,14 @@ STOP_GRACE_S = 60.0
 
 
 def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float | None = None,
-                     slots_by_host: dict | None = None) -> dict:
+                     slots_by_host: dict | None = None, batch: str | None = None) -> dict:
     """Run one job in a fresh ``python -m taichi_mex.app.jobs`` process and return its record.
 
     Inside a Dask worker, ``cpu_threads`` defaults to this host's cores divided by the task
     slots the scheduler counts on it (``slots_by_host``), so the workers of one machine
     together use its cores once. A crash, a timeout or a killed child becomes a failed
-    record; the worker itself survives.
+    record; the worker itself survives. ``batch`` (the sweep's) goes into params.json, so that
+    the sweep knows which runs it started.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -552,7 +553,7 @@ def run_job_isolated(params: dict, out_dir, *, base_dir=None, timeout_s: float |
     if "cpu_threads" not in params:
         params["cpu_threads"] = default_threads(slots_by_host)
     clear_outputs(out_dir)
-    write_json_atomic(out_dir / PARAMS_FILE, {"params": params, "base_dir": base_dir})
+    write_json_atomic(out_dir / PARAMS_FILE, {"params": params, "base_dir": base_dir, "batch": batch})
     t0 = time.perf_counter()
     env = dict(os.environ, TAICHI_MEX_PARENT_PID=str(os.getpid()))
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # numpy's share

@@ -435,6 +435,8 @@ class Outcome:
     interrupted: bool = False
     wall_time_s: float = 0.0
     paths: dict = field(default_factory=dict)
+    #: this sweep's mark in the params.json of each run it starts
+    batch: str = field(default_factory=lambda: uuid.uuid4().hex[:8])
 
 
 def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int | None = None,
@@ -470,7 +472,7 @@ def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int
                          threads_per_run=threads_per_run, timeout_s=timeout_s, progress=progress,
                          echo=echo)
             if outcome.interrupted:
-                _await_records(runnable, runs_dir)
+                _await_records(runnable, runs_dir, outcome.batch, echo)
     finally:  # whatever happened, the table shows every run as it stands
         outcome.paths = write_results(study, out_dir)
     rows = collect_rows(study, runs_dir)
@@ -489,17 +491,37 @@ def execute(study: Study, out_dir, *, scheduler: str | None = None, workers: int
     return outcome
 
 
-def _await_records(runs, runs_dir: Path, grace_s: float = jobs.STOP_GRACE_S) -> None:
-    """After Ctrl-C: wait until no run's record says it is running, so that the table shows
-    the runs the interruption stopped as interrupted. Their job processes take Ctrl-C too and
-    write their records after their step, possibly after the Dask cluster is closed (under
-    load the table once showed such a run as pending, its record as interrupted)."""
+def _await_records(runs, runs_dir: Path, batch: str, echo=print,
+                   grace_s: float = jobs.STOP_GRACE_S) -> None:
+    """After Ctrl-C: wait until every run this sweep started (its params.json names the batch)
+    has a final record, so that the table shows the runs the interruption stopped as
+    interrupted. Their job processes write it after their step, possibly after the Dask
+    cluster is closed; one still importing when Ctrl-C came (started with Ctrl-C ignored, as
+    the workers are) stops when its parent watch sees the worker gone, seconds later. Under
+    load the table twice showed such a run as pending, its record as interrupted. A run with
+    no final record after the grace is recorded as interrupted here."""
+    def unfinished():
+        out = []
+        for r in runs:
+            spec = jobs.read_json(runs_dir / r.name / jobs.PARAMS_FILE) or {}
+            record = jobs.read_record(runs_dir / r.name) or {"status": "running"}
+            if spec.get("batch") == batch and record.get("status") == "running":
+                out.append(r)
+        return out
+
     deadline = time.monotonic() + grace_s
-    while time.monotonic() < deadline:
-        if not any((jobs.read_record(runs_dir / r.name) or {}).get("status") == "running"
-                   for r in runs):
-            return
+    waiting = unfinished()
+    if waiting:
+        echo(f"waiting up to {grace_s:.0f} s for {len(waiting)} interrupted run(s) to stop")
+    while waiting and time.monotonic() < deadline:
         time.sleep(0.2)
+        waiting = unfinished()
+    for r in waiting:
+        record = jobs.read_record(runs_dir / r.name) or {"run": r.name, "params": r.params}
+        record.update(status="interrupted", failure="interrupted",
+                      error="interrupted; its job process wrote no record within "
+                            f"{grace_s:.0f} s")
+        jobs.write_json_atomic(runs_dir / r.name / jobs.JOB_FILE, record)
 
 
 def _write_index(study: Study, out_dir: Path) -> None:
@@ -539,14 +561,15 @@ def _run_on_dask(study, runnable, runs_dir, outcome, *, scheduler, workers, thre
                desc=f"sweep {study.name}", disable=not progress, dynamic_ncols=True)
     try:
         slots = slots_by_host(client)
-        batch = uuid.uuid4().hex[:8]
+        batch = outcome.batch
         for run in runnable:
             params = dict(run.params)
             if threads_per_run and "cpu_threads" not in params:
                 params["cpu_threads"] = int(threads_per_run)
             fut = client.submit(jobs.run_job_isolated, params, str(runs_dir / run.name),
                                 base_dir=str(study.base_dir), timeout_s=timeout_s,
-                                slots_by_host=slots, key=f"taichi-mex-{run.name}-{batch}",
+                                slots_by_host=slots, batch=batch,
+                                key=f"taichi-mex-{run.name}-{batch}",
                                 pure=False, retries=0)
             futures[fut] = run
         bar.set_postfix(failed=failed, refresh=False)
