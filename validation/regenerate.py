@@ -182,6 +182,20 @@ STRANDS = [(0.2, 0.45, "draft"), (0.2, 0.45, "standard"), (0.1, 0.4, 0.05),
            (0.1, 0.6, 0.05), (0.15, 0.5, "draft"), (0.2, 0.6, "draft"), (0.2, 0.7, "draft")]
 
 
+#: the coupled solve's cost and health, per step
+COUPLED_SOLVE = [
+    ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
+     f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
+    ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
+     f"{r.get('time_step_halvings', '')}")]
+
+#: the collapse's front against Huppert's similarity solution
+HUPPERT = [("coefficient ratio K^(1/8) / Huppert", num("front_coefficient_ratio", "{:.3f}")),
+           ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
+           ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
+           ("virtual origin s", num("front_virtual_origin_s", "{:.2f}"))]
+
+
 def _strand_of(r) -> tuple[float, float]:
     return r["gap_mm"], r["width_mm"]
 
@@ -209,6 +223,8 @@ SHEAR = ("--length-mm", 6, "--height-mm", 3, "--plate-speed", 0.01, "--until", 0
 COLLAPSE = ("--radius-mm", 4, "--height-mm", 4, "--viscosity", 10, "--density", 1000)
 BLOCK = ("gcode/paper_block_3x3.gcode",)
 
+COUPLED_STRAND = COMMON + STRAND + DENSITY[:2] + COUPLED_SOLVE
+
 CASES = {
     "hydrostatic": Case(
         "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
@@ -233,10 +249,7 @@ CASES = {
          for dx, t in ((0.5, 12), (0.5, 30), (0.4, 30), (0.3, 30))],
         [("0.8 mm, 6 s", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6)),
          ("0.6 mm, 6 s", scene("collapse", *COLLAPSE, "--spacing-mm", 0.6, "--until", 6))],
-        COMMON + [("coefficient ratio K^(1/8) / Huppert", num("front_coefficient_ratio", "{:.3f}")),
-                  ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
-                  ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
-                  ("virtual origin s", num("front_virtual_origin_s", "{:.2f}"))]),
+        COMMON + HUPPERT),
     "collapse_coupled": Case(
         "the same cylinder with the coupled creeping solve (viscous stress and pressure in one "
         "solve, the free surface's traction, nothing deleted or clamped)",
@@ -245,14 +258,7 @@ CASES = {
          for dx, t in ((0.5, 30), (0.4, 30))],
         [("0.8 mm, 6 s, coupled", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6,
                                          "--creeping-solve", "coupled"))],
-        COMMON + [("coefficient ratio K^(1/8) / Huppert", num("front_coefficient_ratio", "{:.3f}")),
-                  ("radius ratio, second half", num("front_ratio_late", "{:.3f}")),
-                  ("growth exponent, last decade (1/8 = 0.125)", num("front_exponent_late", "{:.3f}")),
-                  ("virtual origin s", num("front_virtual_origin_s", "{:.2f}")),
-                  ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
-                   f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
-                  ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
-                   f"{r.get('time_step_halvings', '')}")],
+        COMMON + HUPPERT + COUPLED_SOLVE,
         folder="collapse", tag="coupled"),
     "thermal_beam": Case(
         "the seed paper's aluminium beam, 50 s: centre-line temperature against the analytic "
@@ -281,22 +287,14 @@ CASES = {
         "PLA 1000 Pa s), coupled solve without the free surface's traction: section against "
         "the commanded area and the slicer's rounded rectangle",
         [strand_run(g, w, res) for g, w, res in STRANDS], [strand_run(0.2, 0.45, 0.1)],
-        COMMON + STRAND + DENSITY[:2] + [
-            ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
-             f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
-            ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
-             f"{r.get('time_step_halvings', '')}")],
+        COUPLED_STRAND,
         folder="strands", tag="coupled"),
     "strands_convergence": Case(
         "the bundled bead (0.2 mm gap, 0.45 mm line) at draft / standard / fine, coupled solve "
         "without the free surface's traction: does the section converge on the rounded rectangle?",
         [strand_run(0.2, 0.45, res) for res in ("draft", "standard", "fine")],
         [strand_run(0.2, 0.45, 0.1)],
-        COMMON + STRAND + DENSITY[:2] + [
-            ("GMRES / inner CG per step", lambda r: f"{r.get('stokes_iterations_per_step', 0):.0f} / "
-             f"{r.get('stokes_inner_iterations_per_step', 0):.0f}"),
-            ("particles lost / halvings", lambda r: f"{r.get('particles_lost', '')} / "
-             f"{r.get('time_step_halvings', '')}")],
+        COUPLED_STRAND,
         folder="strands", tag="convergence"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "

@@ -845,18 +845,7 @@ class CoupledStokes:
             self.coef[l] = s
             out[l] = s
         self._orthogonalise(n, j)
-        return self._norm2(n)
-
-    @ti.func
-    def _norm2(self, n):
-        nb = (n + self.block - 1) // self.block
-        for b in range(nb):
-            s = ti.cast(0.0, ti.f64)
-            for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
-                i = self.rows.index[slot]
-                s += self.w[i].dot(self.w[i])
-            self.part[0, b] = s
-        return self._in_order(self.part, 0, nb)
+        return self._w_sum(n, False)
 
     @ti.func
     def _orthogonalise(self, n, j):
@@ -984,6 +973,10 @@ class CoupledStokes:
 
     @ti.kernel
     def _block_sums(self, n: ti.i32, continuity: ti.template()) -> ti.f64:
+        return self._w_sum(n, continuity)
+
+    @ti.func
+    def _w_sum(self, n, continuity: ti.template()):
         """sum of |w|^2, or of |w_k| (the continuity rows): block by block, then in order."""
         nb = (n + self.block - 1) // self.block
         for b in range(nb):
