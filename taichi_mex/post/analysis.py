@@ -681,10 +681,9 @@ def analyse_run(out_dir, frame: int = -1, positions=None, direction=None,
                              f"{data['path']} holds no melt yet: choose a later frame.")
     centre = data["position"][melt].mean(axis=0)
     # measure every section before writing anything: a bad position leaves old results alone
-    sections = [cross_section(data, point, normal, spacing)
-                for point, normal in section_points(config, positions, direction, centre)]
-    point, normal = section_points(config, None, direction, centre)[0]
-    middle = along_middle(data, point, normal, spacing, along)
+    planes = section_points(config, positions, direction, centre)
+    sections = [cross_section(data, point, normal, spacing) for point, normal in planes]
+    middle = along_middle(data, *planes[0], spacing, along)  # about the default section
     sections_dir = out_dir / "sections"
     sections_dir.mkdir(exist_ok=True)
     for old in sections_dir.glob("section_*.png"):
