@@ -49,3 +49,21 @@ def test_heat_keeps_running_while_the_nozzle_is_away(tmp_path):
     span = s["skipped_spans"][0]
     assert span["heat_steps"] > 0
     assert s["skipped_time_s"] > 0.07
+
+
+def test_the_domain_holds_the_tip_wherever_the_run_is_not_idle(tmp_path):
+    """Melt under the tip face travels with it; it stays in the domain only if the domain holds
+    the whole tip for as long as the run follows the nozzle (the benchy window lost two
+    particles at its edge, carried at nozzle speed past a domain that held only the axis)."""
+    gcode = write_pattern(tmp_path / "two_beads.gcode", pattern="block", bead_length_mm=6.0,
+                          beads=2, layers=1)
+    spec = RunSpec.create("print", changes={"scene.gcode": str(gcode), "scene.region": REGION,
+                                            "run.spacing_mm": 0.1})
+    scene = spec.build_scene()
+    plan = scene.plan(spec.run, spec.material)
+    assert plan.idle_windows
+    times = np.linspace(plan.t_start_s, plan.t_end_s, 4001)
+    busy = ~np.any([(times > a) & (times < b) for a, b in plan.idle_windows], axis=0)
+    axis = scene.trajectory.sample(times[busy], clip=True).position_mm[:, :2] * 1e-3
+    r_tip = 0.5e-3 * 2 * scene.trajectory.printer.nozzle_diameter_mm
+    assert np.all(axis - r_tip >= plan.domain_lo_m[:2]) and np.all(axis + r_tip <= plan.domain_hi_m[:2])

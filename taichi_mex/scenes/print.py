@@ -134,9 +134,14 @@ class PrintScene:
         zoff = self.z_offset_m()
         ext = sel.extent_mm() * 1e-3
         nozzle_r = 0.5e-3 * (self.tip_outer_mm or 2 * traj.printer.nozzle_diameter_mm)
-        margin = run.margin_mm * 1e-3 + nozzle_r
-        lo_xy = ext[0, :2] - margin
-        hi_xy = ext[1, :2] + margin
+        # the nozzle's axis inside this box may deposit or touch the selection's melt; outside
+        # it the run may skip (idle windows)
+        axis_margin = run.margin_mm * 1e-3 + nozzle_r
+        # melt under the tip face moves with it until the axis leaves that box, so the plate
+        # and the domain reach one tip radius further: no melt is carried out of the domain
+        reach = axis_margin + nozzle_r
+        lo_xy = ext[0, :2] - reach
+        hi_xy = ext[1, :2] + reach
         t0 = sel.t_start_s
         t1 = sel.t_end_s + self.settle_s if self.until_s is None else min(self.until_s, sel.t_end_s + self.settle_s)
         t1 = max(t1, t0 + 1e-6)
@@ -161,7 +166,7 @@ class PrintScene:
         # a travel move)
         direction = self._longest_bead_direction()
         speed = float(np.max(np.linalg.norm(traj.sample(times, clip=True).velocity_mm_s, axis=1))) * 1e-3
-        idle = self._idle_windows(t0, t1, lo, hi)
+        idle = self._idle_windows(t0, t1, ext[0, :2] - axis_margin, ext[1, :2] + axis_margin)
         section = self._section_point(zoff)
         self.plan_section = (section, direction / np.linalg.norm(direction))
         return ScenePlan(
@@ -184,9 +189,10 @@ class PrintScene:
     idle_sample_s = 5e-4
 
     def _idle_windows(self, t0: float, t1: float, lo_m, hi_m) -> list[tuple[float, float]]:
-        """Spans in which the nozzle's axis is outside the domain's XY box: then neither the
-        tip nor the bore can touch the melt (the box holds the selection, the tip radius and
-        a margin) and nothing is deposited in the region. One sample is cut off at both ends."""
+        """Spans in which the nozzle's axis is outside the XY box ``lo_m``-``hi_m`` (the
+        selection, the run's margin and the tip radius): then neither the tip nor the bore can
+        touch the selection's melt and nothing is deposited in the region. One sample is cut
+        off at both ends."""
         n = int(np.ceil((t1 - t0) / self.idle_sample_s)) + 1
         if n < 3:
             return []
