@@ -59,6 +59,10 @@ class ScenePlan:
     commanded_volume_m3: object = None
     #: the longest time step the scene's own sampling allows (s); None: the scheme's limit
     max_dt_s: float | None = None
+    #: how far the fastest melt moves over the run (m), for scenes that know it (a slumping
+    #: column): the implicit solver's CFL steps then number travel / (CFL x spacing), however
+    #: fast the motion starts, beside the steps the longest step needs
+    travel_m: float | None = None
     #: heat's diffusion limit for scenes that know it up front (s)
     thermal_dt_s: float | None = None
     #: print scenes: the scales of the creeping-flow numbers (viscosity scaling)

@@ -64,6 +64,9 @@ class CollapseScene:
             speed_scale_m_s=math.sqrt(run.gravity_m_s2 * self.Hc),
             # the front is sampled at least every 0.05 s; the physics' limits act below it
             max_dt_s=0.05, info={"volume_m3": volume},
+            # the front moves out to Huppert's radius and the top falls by about the column's
+            # height: no melt travels much further than the larger of the two
+            travel_m=max(r_end - self.R, self.Hc),
         )
 
     def front_radius(self, sim) -> float:

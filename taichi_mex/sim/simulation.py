@@ -185,6 +185,15 @@ class Simulation:
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
         dt, limits = self._dt_guess(H)
+        steps = int(np.ceil((span - idle) / dt)) if dt > 0 else 0
+        if self.plan.travel_m is not None and run.scheme == "dfsph":
+            # the CFL step follows the melt's speed, which decays as a slump creeps: count the
+            # steps that cover the travel at the CFL step plus those the longest step needs
+            # (an upper bound on sum(max(v dt / (cfl dx), dt / max_dt)) over the run)
+            by_travel = int(np.ceil(self.plan.travel_m / (run.dfsph.cfl * 0.4 * dx)
+                                    + (span - idle) / limits["max"]))
+            if by_travel < steps:
+                steps, dt = by_travel, (span - idle) / by_travel
         warn = []
         if "viscous" in limits and limits["viscous"] < 0.1 * limits["cfl"]:
             warn.append(
@@ -195,8 +204,8 @@ class Simulation:
                 "memory_bytes": memory, "simulated_time_s": span, "dt_estimate_s": dt,
                 "list_skin": skin,
                 "idle_s": idle,
-                "steps_estimate": int(np.ceil((span - idle) / dt)) if dt > 0 else 0,
-                "wall_time_estimate_s": self._wall_estimate(initial, inflow, (span - idle) / dt if dt > 0 else 0),
+                "steps_estimate": steps,
+                "wall_time_estimate_s": self._wall_estimate(initial, inflow, steps),
                 "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
 
     def _wall_estimate(self, initial: int, inflow: int, steps: float) -> float | None:
