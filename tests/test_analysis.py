@@ -244,3 +244,22 @@ def test_the_middle_of_a_bead_is_read_over_nine_sections(tmp_path):
     assert mid["mean_width_mm"] == pytest.approx(sec["mean_width_mm"])
     assert mid["width_min_mm"] == mid["width_max_mm"]
     assert "along_middle" not in analysis.analyse_run(tmp_path / "even", along=0)
+
+
+def test_summary_and_sweep_read_the_same_section_figures():
+    """The summary and a sweep's table take the middle's means where measured and the default
+    section's necks and counts (one helper, post/analysis.py::headline_section)."""
+    from taichi_mex.app.jobs import mesostructure_metrics
+    from taichi_mex.post.analysis import headline_section
+
+    default = {"mean_width_mm": 0.5, "mean_height_mm": 0.2, "mean_area_mm2": 0.09,
+               "void_fraction": 0.1, "beads_count": 2, "mean_neck_side_mm": 0.15}
+    middle = {"mean_width_mm": 0.46, "mean_height_mm": 0.19, "mean_area_mm2": 0.08,
+              "void_fraction": 0.05, "width_min_mm": 0.44, "width_max_mm": 0.48, "sections": 9}
+    both = {"sections": [default], "along_middle": middle}
+    head = headline_section(both)
+    assert head["mean_width_mm"] == 0.46 and head["beads_count"] == 2 and head["sections"] == 9
+    assert headline_section({"sections": [default]})["mean_width_mm"] == 0.5
+    m = mesostructure_metrics(both)
+    assert m["bead_width_mm"] == 0.46 and m["void_fraction"] == 0.05
+    assert m["beads_count"] == 2 and m["neck_side_mm"] == 0.15

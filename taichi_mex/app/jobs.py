@@ -334,12 +334,9 @@ def mesostructure_metrics(meso: dict | None) -> dict:
     the default section."""
     if not isinstance(meso, dict):
         return {}
-    sections = meso.get("sections")
-    sec = sections[0] if isinstance(sections, list) and sections and isinstance(sections[0], dict) else meso
-    middle = meso.get("along_middle")
-    if isinstance(middle, dict):
-        sec = {**sec, **{k: middle[k] for k in ("mean_width_mm", "mean_height_mm",
-                                                 "mean_area_mm2", "void_fraction") if k in middle}}
+    from taichi_mex.post.analysis import headline_section
+
+    sec = headline_section(meso)
     pick = {"bead_width_mm": ("mean_width_mm", "bead_width_mm", "width_mm"),
             "bead_height_mm": ("mean_height_mm", "bead_height_mm", "height_mm"),
             "bead_area_mm2": ("mean_area_mm2", "bead_area_mm2", "area_mm2"),

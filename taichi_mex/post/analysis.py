@@ -657,6 +657,18 @@ def along_middle(frame: dict, point_m, normal, spacing_m: float, count: int = AL
     return out
 
 
+def headline_section(meso: dict) -> dict:
+    """What a run's summary and a sweep's table report of ``mesostructure.json``: the default
+    section's figures (necks, counts), its bead figures (width, height, area, tops, void
+    fraction and their ranges) replaced by the means over the melt's middle where those were
+    measured (one section is not a reproducible measure). A dict without ``sections`` is
+    read as one section."""
+    sections = meso.get("sections")
+    first = sections[0] if isinstance(sections, list) and sections and isinstance(sections[0], dict) else meso
+    middle = meso.get("along_middle")
+    return {**first, **middle} if isinstance(middle, dict) else dict(first)
+
+
 def analyse_run(out_dir, frame: int = -1, positions=None, direction=None,
                 along: int = ALONG_SECTIONS) -> dict:
     """Sections of one frame of ``out_dir/particles.h5``: the default one (through the

@@ -679,9 +679,9 @@ class Simulation:
         summary.update(getattr(self, "bead_metrics", {}) or {})
         meso = getattr(self, "mesostructure", None)
         if meso and meso.get("sections"):
-            # the mean over the bead's middle where measured (post/analysis.py: one section
-            # is not a reproducible measure), else the default section
-            first = meso.get("along_middle") or meso["sections"][0]
+            from taichi_mex.post.analysis import headline_section
+
+            first = headline_section(meso)
             if "width_min_mm" in first:
                 summary["bead_width_range_mm"] = [first["width_min_mm"], first["width_max_mm"]]
                 summary["bead_height_range_mm"] = [first["height_min_mm"], first["height_max_mm"]]
