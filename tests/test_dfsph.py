@@ -81,9 +81,10 @@ def test_collapse_spreads_like_huppert(tmp_path):
     assert abs(s["front_ratio_late"] - 1.0) < 0.05
     assert s["particles_lost"] == 0
     assert (out / "front.png").stat().st_size > 1000
-    # the step count printed before the run: the creeping slump's steps sit at the scene's
-    # 0.05 s cap, not at the CFL step of the free-fall speed sqrt(g H) (that said 22x too many)
-    assert 1.0 <= s["estimate"]["steps_estimate"] / s["steps"] <= 1.5
+    # the step count printed before the run, within issue 17's 0.5-2x: the creeping slump's
+    # steps follow its travel and the sampling cap, not the CFL step of the free-fall speed
+    # sqrt(g H) (which printed 22x too many)
+    assert 0.5 <= s["estimate"]["steps_estimate"] / s["steps"] <= 2.0
 
 
 def test_viscosity_models():
