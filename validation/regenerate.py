@@ -220,7 +220,12 @@ STRAND = [("material area / commanded", ratio_to("bead_material_area_mm2", _stra
 
 HYDRO = ("--width-mm", 8, "--height-mm", 12)
 SHEAR = ("--length-mm", 6, "--height-mm", 3, "--plate-speed", 0.01, "--until", 0.01)
-COLLAPSE = ("--radius-mm", 4, "--height-mm", 4, "--viscosity", 10, "--density", 1000)
+CYLINDER = ("--radius-mm", 4, "--height-mm", 4, "--density", 1000)
+COLLAPSE = (*CYLINDER, "--viscosity", 10)
+#: the coupled collapse across viscosities: the same shapes at the same eta-scaled time
+#: t rho g H / eta (30 s at 10 Pa s); (spacing mm, eta Pa s, run s)
+COUPLED_COLLAPSES = ((0.5, 10, 30), (0.4, 10, 30), (0.3, 10, 30), (0.5, 1, 3), (0.5, 1000, 3000),
+                     (0.3, 1, 3))
 BLOCK = ("gcode/paper_block_3x3.gcode",)
 
 COUPLED_STRAND = COMMON + STRAND + DENSITY[:2] + COUPLED_SOLVE
@@ -253,9 +258,9 @@ CASES = {
     "collapse_coupled": Case(
         "the same cylinder with the coupled creeping solve (viscous stress and pressure in one "
         "solve, the free surface's traction, nothing deleted or clamped)",
-        [(f"{dx} mm, {t} s, coupled", scene("collapse", *COLLAPSE, "--spacing-mm", dx, "--until", t,
-                                             "--creeping-solve", "coupled"))
-         for dx, t in ((0.5, 30), (0.4, 30))],
+        [(f"{dx} mm, {eta} Pa s, {t} s, coupled", scene(
+            "collapse", *CYLINDER, "--viscosity", eta, "--spacing-mm", dx, "--until", t,
+            "--creeping-solve", "coupled")) for dx, eta, t in COUPLED_COLLAPSES],
         [("0.8 mm, 6 s, coupled", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6,
                                          "--creeping-solve", "coupled"))],
         COMMON + HUPPERT + COUPLED_SOLVE,

@@ -41,7 +41,13 @@ in 20,000 iterations with it and converges in 1,160 with the inner solve.
 Right preconditioning makes GMRES minimise the true residual; the stop is on what the step
 leaves, measured at each restart: the momentum residual relative to the right-hand side, both
 through the diagonal blocks (so in velocities), and the largest predicted density error
-dt |D(u) - s|.
+dt |D(u) - s|. A cycle ends early once GMRES's running residual norm (Saad & Schultz's
+|g_{j+1}|, known without forming the iterate) has fallen enough that both criteria, scaled by
+that fall, are met; the true residuals then decide. Ran to the full restart length every
+cycle, the draft bead took 47 GMRES / 248 inner iterations a step; with the early end 36 /
+193, and with the inner tolerance 0.3 instead of 0.1 41 / 84; nine-section width 0.465 /
+0.467 / 0.467 mm, height 0.198 mm in all three (2026-12-03). The iteration counts quoted below
+for the bore, film and extension were measured before that.
 
 Continuity source s: the compression the step removes, min(1 - rho_i / rho0, 0) / dt
 (Bender & Koschier 2017's clamp); elsewhere the velocity is divergence free. The constraint is
@@ -961,8 +967,13 @@ class CoupledStokes:
                 H[: j + 2, j] = h
                 k = j + 1
                 iterations += 1
-                # the Krylov residual bounds the whole residual; test the true one at restart
-                if iterations >= self.max_iterations or breakdown == 0.0:
+                # |g[j + 1]| is the iterate's residual norm (right preconditioning): end the
+                # cycle once the criteria, scaled by how far it fell since the cycle began,
+                # are met; the true residuals decide at the top of the loop (a cycle that
+                # stopped too early is followed by another)
+                fall = abs(g[j + 1]) / beta
+                if (iterations >= self.max_iterations or breakdown == 0.0
+                        or (rel * fall <= self.tol_u and rmax * fall <= self.tol_rho)):
                     break
             y = np.linalg.solve(np.triu(H[:k, :k]), g[:k]) if k else np.zeros(0)
             self._set_coef(y)
