@@ -44,10 +44,9 @@ through the diagonal blocks (so in velocities), and the largest predicted densit
 dt |D(u) - s|. A cycle ends early once GMRES's running residual norm (Saad & Schultz's
 |g_{j+1}|, known without forming the iterate) has fallen enough that both criteria, scaled by
 that fall, are met; the true residuals then decide. Ran to the full restart length every
-cycle, the draft bead took 47 GMRES / 248 inner iterations a step; with the early end 36 /
-193, and with the inner tolerance 0.3 instead of 0.1 41 / 84; nine-section width 0.465 /
-0.467 / 0.467 mm, height 0.198 mm in all three (2026-12-03). The iteration counts quoted below
-for the bore, film and extension were measured before that.
+cycle, the draft bead took 47 GMRES / 248 inner iterations a step, with the early end 36 /
+193: nine-section width 0.465 / 0.467 mm, height 0.198 mm in both (2026-12-03). The
+iteration counts quoted below for the bore, film and extension were measured before that.
 
 Continuity source s: the compression the step removes, min(1 - rho_i / rho0, 0) / dt
 (Bender & Koschier 2017's clamp); elsewhere the velocity is divergence free. The constraint is
