@@ -261,12 +261,16 @@ dt_factor = [1.0, 0.01]   # the second run takes minutes: it is still running at
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
+        # Ctrl-C once the first run is done and the second has started (its job process
+        # wrote params.json): under load the second once had not started 2 s after the
+        # first was done, and a run never started is rightly 'pending'
         deadline = time.time() + 240
         while time.time() < deadline and proc.poll() is None:
-            if any(r["status"] == "done" for r in _records(out).values()):
+            done = [n for n, r in _records(out).items() if r["status"] == "done"]
+            started = [p.parent.name for p in (out / "runs").glob("*/params.json")]
+            if done and set(started) - set(done):
                 break
             time.sleep(0.5)
-        time.sleep(2.0)
         os.killpg(proc.pid, signal.SIGINT)
         text, _ = proc.communicate(timeout=120)
     finally:

@@ -449,16 +449,17 @@ def timestamp() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
-def run_print_job(params: dict, out_dir, *, base_dir=None) -> dict:
+def run_print_job(params: dict, out_dir, *, base_dir=None, batch: str | None = None) -> dict:
     """Run one job in this process and return its record (also written as ``job.json``).
 
     Never raises for a failed run: a refused parameter, a blow-up, an interruption or a bug
     gives ``status`` ``'failed'`` or ``'interrupted'`` with the message under ``error``.
+    ``batch``: the sweep that started it, kept in params.json (see run_job_isolated).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     clear_outputs(out_dir)
-    write_json_atomic(out_dir / PARAMS_FILE, {"params": params, "base_dir": base_dir})
+    write_json_atomic(out_dir / PARAMS_FILE, {"params": params, "base_dir": base_dir, "batch": batch})
     record = {"run": out_dir.name, "status": "running", "params": params, "started": timestamp(),
               "host": socket.gethostname(), "pid": os.getpid()}
     t0 = time.perf_counter()
@@ -650,7 +651,8 @@ def main(argv: list[str] | None = None) -> int:
     parent = os.environ.get("TAICHI_MEX_PARENT_PID")
     if parent and parent.isdigit():
         _watch_parent(int(parent))
-    record = run_print_job(spec["params"], run_dir, base_dir=spec.get("base_dir"))
+    record = run_print_job(spec["params"], run_dir, base_dir=spec.get("base_dir"),
+                           batch=spec.get("batch"))
     print(f"{record['run']}: {record['status']}" + (f" ({record.get('failure')}): {record['error']}"
                                                     if record.get("error") else ""))
     return {"done": 0, "interrupted": 130}.get(record["status"], 1)
