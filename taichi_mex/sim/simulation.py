@@ -29,15 +29,20 @@ _TEMP_FACTOR = 2.0
 #: particle-steps per second measured on a 2-core CPU (README, Performance and trade
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-#: dfsph-coupled: the bundled bead with --creeping-solve coupled --no-surface-traction
-#: (draft 157-277 s, standard 594-752 s, estimated 235 s and 556 s; 2026-12-02)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.0e4, "static": 3.0e6}
+#: dfsph-coupled: the bundled bead with --creeping-solve coupled --no-surface-traction, after
+#: the early end of GMRES cycles (draft 120 s beside one other run, 319 s beside two;
+#: standard 852 s beside two; 2026-12-03); dfsph-coupled-traction: the same solve with the
+#: free surface's traction, several times the cost per particle-step (the 4 mm collapse at
+#: 0.5 mm: 763-888 s for 590 steps beside two other runs, 2026-12-03)
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 6.0e4,
+                       "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 #: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
 #: rate; the default bead runs 3.5x faster, the paper blocks (3x its viscosity iterations,
 #: and a compression correction in half of their steps) at 1.0-1.1x its time
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.4)}
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 2.1),
+                   "dfsph-coupled-traction": (1.3, 1.5)}
 
 
 def available_memory_bytes() -> int:
@@ -225,7 +230,7 @@ class Simulation:
         split one per particle-step."""
         run = self.run_opts
         if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
-            return "dfsph-coupled"
+            return "dfsph-coupled-traction" if run.dfsph.stokes_surface_traction else "dfsph-coupled"
         return run.scheme
 
     @staticmethod
