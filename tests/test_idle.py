@@ -65,5 +65,5 @@ def test_the_domain_holds_the_tip_wherever_the_run_is_not_idle(tmp_path):
     times = np.linspace(plan.t_start_s, plan.t_end_s, 4001)
     busy = ~np.any([(times > a) & (times < b) for a, b in plan.idle_windows], axis=0)
     axis = scene.trajectory.sample(times[busy], clip=True).position_mm[:, :2] * 1e-3
-    r_tip = 0.5e-3 * 2 * scene.trajectory.printer.nozzle_diameter_mm
+    r_tip = scene.tip_radius_m()
     assert np.all(axis - r_tip >= plan.domain_lo_m[:2]) and np.all(axis + r_tip <= plan.domain_hi_m[:2])

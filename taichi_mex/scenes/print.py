@@ -115,6 +115,10 @@ class PrintScene:
     def trajectory(self):
         return self.print_plan.trajectory
 
+    def tip_radius_m(self) -> float:
+        """Radius of the nozzle's flat tip face: the given outer diameter, else twice the bore."""
+        return 0.5e-3 * (self.tip_outer_mm or 2 * self.trajectory.printer.nozzle_diameter_mm)
+
     def z_offset_m(self) -> float:
         if self.nozzle_height == "gcode":
             return 0.0
@@ -133,7 +137,7 @@ class PrintScene:
         H = factor * dx
         zoff = self.z_offset_m()
         ext = sel.extent_mm() * 1e-3
-        nozzle_r = 0.5e-3 * (self.tip_outer_mm or 2 * traj.printer.nozzle_diameter_mm)
+        nozzle_r = self.tip_radius_m()
         # the nozzle's axis inside this box may deposit or touch the selection's melt; outside
         # it the run may skip (idle windows)
         axis_margin = run.margin_mm * 1e-3 + nozzle_r
