@@ -1,7 +1,8 @@
-import importlib.resources
 from pathlib import Path
 
 import pytest
+
+from taichi_mex.bundled import pygcd_example  # noqa: F401  (tests import it from here)
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -16,11 +17,6 @@ def write_gcode(tmp_path):
         return path
 
     return _write
-
-
-def pygcd_example(name: str) -> Path:
-    """A slicer file shipped in pyGCodeDecode's wheel."""
-    return Path(str(importlib.resources.files("pyGCodeDecode"))) / "examples" / "data" / name
 
 
 #: test tiers. Unit tests (every file not named here) take seconds; the validation tier runs

@@ -22,6 +22,16 @@ def test_dry_run_on_bundled_default(tmp_path, capsys):
     assert "selected layers 1" in capsys.readouterr().out
 
 
+def test_pygcodedecode_examples_by_name(tmp_path):
+    """pygcodedecode:NAME is one of pyGCodeDecode's example prints (the window benchmarks run
+    its benchy); an unknown name lists the ones there are."""
+    assert bundled.resolve_gcode("pygcodedecode:triangle") == bundled.pygcd_example("triangle.gcode")
+    assert main(["pygcodedecode:triangle", "--dry-run", "--out", str(tmp_path)]) == 0
+    assert json.loads((tmp_path / "plan.json").read_text())["gcode"].endswith("triangle.gcode")
+    with pytest.raises(Exception, match="pygcodedecode:benchy"):
+        bundled.resolve_gcode("pygcodedecode:nosuchpart")
+
+
 def test_dry_run_selection_is_reported(tmp_path):
     gcode = bundled.gcode_path("block_3x3")
     assert main([str(gcode), "--dry-run", "--out", str(tmp_path), "--layers", "2-3",

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.resources
 import time
 from pathlib import Path
 
 import numpy as np
 
 
-def pygcd_example(name: str) -> Path:
-    return Path(str(importlib.resources.files("pyGCodeDecode"))) / "examples" / "data" / name
+from taichi_mex.bundled import pygcd_example
 
 
 def bench_toolpath(gcode: Path | None = None, printer: str = "prusa_mini",

@@ -136,6 +136,7 @@ class CoupledStokes:
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
                        "surf_rhs",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "pq", "alpha",
+                       "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
                        "dots_out")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
@@ -198,6 +199,14 @@ class CoupledStokes:
         self.total = ti.field(ti.f64, shape=())
         self.pq = ti.field(ti.f64, shape=())  # the inner iteration's p . q and step length
         self.alpha = ti.field(ti.f64, shape=())
+        # the inner solve's scalars stay on the device between its launches: r . z now and at
+        # the start, the direction's beta, the iteration count and whether it has stopped
+        self.cg_rz = ti.field(ti.f64, shape=())
+        self.cg_rz0 = ti.field(ti.f64, shape=())
+        self.cg_beta = ti.field(ti.f64, shape=())
+        self.cg_it = ti.field(ti.i32, shape=())
+        self.cg_done = ti.field(ti.i32, shape=())
+        self.chunk = int(opts.cg_chunk)
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
@@ -590,9 +599,10 @@ class CoupledStokes:
             acc += f * cF * pi.dot(xij) * xij
 
     @ti.kernel
-    def _inner_begin(self, n: ti.i32, j: ti.i32) -> ti.f64:
+    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32) -> ti.i32:
         """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
-        r = rhs, cg_z = B^-1 r, p = 0; returns r . B^-1 r."""
+        r = rhs, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it has stopped
+        already (rz = 0, or no iteration allowed)."""
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, i]
@@ -609,7 +619,16 @@ class CoupledStokes:
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-        return self._inner_blocks(n, 0)
+        self._inner_blocks(n, 0)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            rz = self.total[None]
+            self.cg_rz[None] = rz
+            self.cg_rz0[None] = rz
+            self.cg_beta[None] = 0.0
+            self.cg_it[None] = 0
+            self.cg_done[None] = 0 if (rz > 0.0 and max_it > 0) else 1
+        return self.cg_done[None]
 
     @ti.func
     def _inner_binv(self, i):
@@ -647,35 +666,52 @@ class CoupledStokes:
         return self.total[None]
 
     @ti.kernel
-    def _inner_iteration(self, n: ti.i32, beta: ti.f64, rz: ti.f64) -> ti.types.vector(2, ti.f64):
-        """One conjugate-gradient iteration in one launch (a launch and a wait cost about as
-        much as the sums on a bead's few thousand rows): p = cg_z + beta p, q = A~ p,
-        alpha = rz / p.q, x += alpha p, r -= alpha q, cg_z = B^-1 r; returns (r . cg_z, p . q).
-        p . q <= 0 (rounding at convergence: A~ is positive definite) leaves x and r alone."""
-        for slot in range(n):
-            i = self.rows.index[slot]
-            self.cg_p[i] = self.cg_z[i] + beta * self.cg_p[i]
-        dt = self.dt[None]
-        for slot in range(n):
-            i = self.rows.index[slot]
-            acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            self.grid.for_each_listed(i, self._inner_task, acc)
-            self.cg_q[i] = self.cg_p[i] - dt * acc
-        self._inner_blocks(n, 1)
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            pq = self.total[None]
-            self.pq[None] = pq
-            self.alpha[None] = rz / pq if pq > 0.0 else 0.0
-        for slot in range(n):
-            i = self.rows.index[slot]
-            alpha = self.alpha[None]
-            self.cg_x[i] += alpha * self.cg_p[i]
-            r = self.cg_r[i] - alpha * self.cg_q[i]
-            self.cg_r[i] = r
-            self.cg_z[i] = self._inner_binv(i) @ r
-        self._inner_blocks(n, 0)
-        return ti.Vector([self.total[None], self.pq[None]])
+    def _inner_iterations(self, n: ti.i32, tol2: ti.f64, max_it: ti.i32) -> ti.i32:
+        """``cg_chunk`` conjugate-gradient iterations in one launch (a launch and a wait cost
+        about as much as the sums on a bead's few thousand rows; iterations after the stop do
+        no work), each: p = cg_z + beta p, q = A~ p, alpha = rz / p.q, x += alpha p,
+        r -= alpha q, cg_z = B^-1 r, beta = rz_new / rz. The stop: r . cg_z at most tol2 times
+        its start, or max_it iterations, or p . q <= 0 (rounding at convergence: A~ is
+        positive definite), which leaves x and r alone. Returns whether it has stopped."""
+        for _step in ti.static(range(self.chunk)):
+            for slot in range(n):
+                if self.cg_done[None] == 0:
+                    i = self.rows.index[slot]
+                    self.cg_p[i] = self.cg_z[i] + self.cg_beta[None] * self.cg_p[i]
+            for slot in range(n):
+                if self.cg_done[None] == 0:
+                    i = self.rows.index[slot]
+                    acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+                    self.grid.for_each_listed(i, self._inner_task, acc)
+                    self.cg_q[i] = self.cg_p[i] - self.dt[None] * acc
+            self._inner_blocks(n, 1)
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                if self.cg_done[None] == 0:
+                    pq = self.total[None]
+                    if pq > 0.0:
+                        self.alpha[None] = self.cg_rz[None] / pq
+                    else:
+                        self.cg_done[None] = 1
+            for slot in range(n):
+                if self.cg_done[None] == 0:
+                    i = self.rows.index[slot]
+                    alpha = self.alpha[None]
+                    self.cg_x[i] += alpha * self.cg_p[i]
+                    r = self.cg_r[i] - alpha * self.cg_q[i]
+                    self.cg_r[i] = r
+                    self.cg_z[i] = self._inner_binv(i) @ r
+            self._inner_blocks(n, 0)
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                if self.cg_done[None] == 0:
+                    rz, rz_old = self.total[None], self.cg_rz[None]
+                    self.cg_rz[None] = rz
+                    self.cg_beta[None] = rz / rz_old
+                    self.cg_it[None] += 1
+                    if not (rz > 0.0 and self.cg_it[None] < max_it and rz > tol2 * self.cg_rz0[None]):
+                        self.cg_done[None] = 1
+        return self.cg_done[None]
 
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32):
@@ -692,18 +728,12 @@ class CoupledStokes:
         """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
         diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
         iterations."""
-        rz = rz0 = self._inner_begin(n, j)
-        beta = 0.0
-        it = 0
-        while rz > 0.0 and it < self.inner_max and rz > self.inner_tol ** 2 * rz0:
-            rz_new, pq = self._inner_iteration(n, beta, rz).to_numpy()
-            if pq <= 0.0:
-                break  # A~ is positive definite; only rounding at convergence gets here
-            rz, rz_old = float(rz_new), rz
-            beta = rz / rz_old
-            it += 1
+        tol2 = self.inner_tol ** 2
+        done = self._inner_begin(n, j, self.inner_max)
+        while not done:
+            done = self._inner_iterations(n, tol2, self.inner_max)
         self._inner_finish(n, j)
-        return it
+        return int(self.cg_it[None])
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
