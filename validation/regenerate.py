@@ -229,6 +229,33 @@ BLOCK = ("gcode/paper_block_3x3.gcode",)
 
 COUPLED_STRAND = COMMON + STRAND + DENSITY[:2] + COUPLED_SOLVE
 
+#: a real slicer's part: PrusaSlicer's benchy from pyGCodeDecode's examples, layer 3, at draft
+BENCHY = ("pygcodedecode:benchy", "--layers", 3, "--resolution", "draft")
+#: where the windows start (print time, s; the plan prints them), for the quick runs' first second
+BENCHY_4MM_START_S = 175.75
+BENCHY_10MM_START_S = 153.53
+
+
+def window(region, *args):
+    return [*map(str, BENCHY), "--region", region, *map(str, args), *QUIET, "--out", "{out}"]
+
+
+def _ratio(a, b, fmt="{:.2f}"):
+    return lambda r: "" if not r.get(b) or r.get(a) is None else fmt.format(r[a] / r[b])
+
+
+WINDOW = COMMON + [
+    ("window s / skipped s", lambda r: f"{r['simulated_time_s']:.2f} / {r.get('skipped_time_s', 0):.2f}"),
+    ("deposited / commanded mm^3", lambda r: f"{r['deposited_volume_mm3']:.4f} / "
+     f"{r['commanded_volume_mm3']:.4f} ({100 * (r['deposited_volume_mm3'] / r['commanded_volume_mm3'] - 1):+.1f} %)"
+     if r.get("commanded_volume_mm3") else ""),
+    ("estimate / measured: steps, wall", lambda r: (
+        f"{r['estimate']['steps_estimate'] / r['steps']:.2f}, "
+        + (f"{r['estimate']['wall_time_estimate_s'] / r['wall_time_s']:.2f}"
+           if r['estimate'].get('wall_time_estimate_s') else "-")) if r.get("estimate") and r.get("steps") else ""),
+    ("melt M particle-steps/s", lambda r: f"{r['melt_particle_steps_per_s'] / 1e6:.3f}"
+     if r.get("melt_particle_steps_per_s") else "")] + LOSSES[:1] + COUPLED_SOLVE
+
 CASES = {
     "hydrostatic": Case(
         "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
@@ -264,6 +291,25 @@ CASES = {
                                          "--creeping-solve", "coupled"))],
         COMMON + HUPPERT + COUPLED_SOLVE,
         folder="collapse", tag="coupled"),
+    "windows": Case(
+        "a real slicer's part: benchy (PrusaSlicer, pyGCodeDecode's example), layer 3, the 4 x 4 mm "
+        "window 88-92 mm x 88-92 mm at draft, the coupled solve against the split one",
+        [("benchy 4 x 4 mm, coupled", window("88:92,88:92", "--creeping-solve", "coupled",
+                                             "--no-surface-traction")),
+         ("benchy 4 x 4 mm, split", window("88:92,88:92"))],
+        [("benchy 4 x 4 mm, first second, coupled", window(
+            "88:92,88:92", "--until", BENCHY_4MM_START_S + 1, "--creeping-solve", "coupled",
+            "--no-surface-traction")),
+         ("benchy 4 x 4 mm, first second, split", window("88:92,88:92", "--until", BENCHY_4MM_START_S + 1))],
+        WINDOW),
+    "windows_10mm": Case(
+        "the same part's 10 x 10 mm window (85-95 mm x 85-95 mm), layer 3, draft, coupled solve",
+        [("benchy 10 x 10 mm, coupled", window("85:95,85:95", "--creeping-solve", "coupled",
+                                               "--no-surface-traction"))],
+        [("benchy 10 x 10 mm, first second, coupled", window(
+            "85:95,85:95", "--until", BENCHY_10MM_START_S + 1, "--creeping-solve", "coupled",
+            "--no-surface-traction"))],
+        WINDOW, folder="windows", tag="10mm"),
     "thermal_beam": Case(
         "the seed paper's aluminium beam, 50 s: centre-line temperature against the analytic "
         "series (a) and a finite-volume solution with losses (b)",
