@@ -346,6 +346,15 @@ CASES = {
         [strand_run(0.2, 0.45, 0.1)],
         COUPLED_STRAND,
         folder="strands", tag="convergence"),
+    "strands_step": Case(
+        "the bundled bead at draft, coupled solve, at half, once and twice the CFL step "
+        "(--dt-factor): how much of the section is the time step's",
+        [(f"draft, dt x {f:g}", strand(0.2, 0.45, "--resolution", "draft", "--dt-factor", f),
+          {"gap_mm": 0.2, "width_mm": 0.45}) for f in (0.5, 1, 2)],
+        [(f"0.1 mm, dt x {f:g}", strand(0.2, 0.45, "--resolution", 0.1, "--dt-factor", f),
+          {"gap_mm": 0.2, "width_mm": 0.45}) for f in (1, 2)],
+        COUPLED_STRAND,
+        folder="strands", tag="step"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "
         "bead's shape error relative to the finest run",
