@@ -91,6 +91,20 @@ def test_layers_above_the_first_print_on_a_solid_substrate():
     assert volume == pytest.approx(layer1, rel=0.1)
 
 
+def test_a_window_on_a_substrate_reports_only_its_own_melt_as_deposited(tmp_path):
+    """The substrate a layer window starts on was printed before the run: deposited counts the
+    melt the run released (it counted the substrate too: 3.2 mm^3 'deposited' of 0.02)."""
+    opts = RunOptions(spacing_mm=0.1, progress=False, snapshots=False, output_every_s=0.01)
+    start = PrintScene(bundled.gcode_path("block_3x3"), layers=[2]).plan(opts, Material()).t_start_s
+    scene = PrintScene(bundled.gcode_path("block_3x3"), layers=[2], until_s=start + 0.03)
+    sim = Simulation(scene, opts, Material(), out_dir=tmp_path)
+    s = sim.run()
+    assert sim.plan.blocks and any(b.phase == 1 for b in sim.plan.blocks)
+    slice_mm3 = sim.inlet.n_slice * 0.1 ** 3
+    assert s["commanded_volume_mm3"] > slice_mm3
+    assert abs(s["deposited_volume_mm3"] - s["commanded_volume_mm3"]) <= 0.5 * slice_mm3 + 1e-9
+
+
 def test_cli_run_writes_results(tmp_path, capsys):
     args = [str(bundled.gcode_path("paper_bead")), "--preset", "paper", "--resolution", "0.12",
             "--until", "0.335", "--out", str(tmp_path), "--quiet", "--no-snapshots"]

@@ -245,12 +245,12 @@ def _ratio(a, b, fmt="{:.2f}"):
 
 
 def _deposited(r) -> str:
-    """The window's melt (fluid particles, each one lattice cell; the substrate below the
-    layer is solid and not counted) against the plan's commanded extrusion."""
+    """The window's melt (the substrate below the layer, printed before the run, not counted)
+    against the plan's commanded extrusion."""
     if not r.get("commanded_volume_mm3"):
         return ""
-    melt = r["particles_by_phase"]["fluid"] * r["spacing_mm"] ** 3
-    return f"{melt:.4f} / {r['commanded_volume_mm3']:.4f} ({100 * (melt / r['commanded_volume_mm3'] - 1):+.1f} %)"
+    melt, cmd = r["deposited_volume_mm3"], r["commanded_volume_mm3"]
+    return f"{melt:.4f} / {cmd:.4f} ({100 * (melt / cmd - 1):+.1f} %)"
 
 
 WINDOW = COMMON + [

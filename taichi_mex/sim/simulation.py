@@ -348,6 +348,8 @@ class Simulation:
             self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H, self.mass,
                                      spec.z_offset_m, spec.tip_outer_diameter_m)
         self._initial_fluid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
+        # the substrate below a print window's layer: melt printed before the run, not deposited
+        self._initial_solid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == SOLID)
         for block in self.plan.blocks:
             sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
                                    density=self.material.density_kg_m3, bead=block.bead,
@@ -793,7 +795,8 @@ class Simulation:
     def summary(self, wall_s: float, particle_steps: int, dt_limits: dict) -> dict:
         phase = self.state.phase.to_numpy()[: self.state.n]
         counts = {PHASE_NAMES[k]: int((phase == k).sum()) for k in PHASE_NAMES}
-        melt = int(((phase == FLUID) | (phase == SOLID)).sum())
+        # melt the run holds (solidified melt included), less the substrate it started on
+        melt = int(((phase == FLUID) | (phase == SOLID)).sum()) - self._initial_solid
         vol_particle = self.run_opts.spacing_m**3
         out = {
             "scene": self.plan.name,
