@@ -29,19 +29,26 @@ _TEMP_FACTOR = 2.0
 #: particle-steps per second measured on a 2-core CPU (README, Performance and trade
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-#: dfsph-coupled: the bundled bead with --creeping-solve coupled --no-surface-traction, after
-#: the early end of GMRES cycles (draft 120 s beside one other run, 319 s beside two;
-#: standard 852 s beside two; 2026-12-03); dfsph-coupled-traction: the same solve with the
-#: free surface's traction, several times the cost per particle-step (the 4 mm collapse at
-#: 0.5 mm: 763-888 s for 590 steps beside two other runs, 2026-12-03)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 6.0e4,
+#: dfsph-coupled: the bundled bead at draft with --creeping-solve coupled --no-surface-traction
+#: and the momentum tolerance 1e-5 (89 s for 602 steps beside other runs; benchy's 4 x 4 mm
+#: window's first second 131-265 s; 2026-12-03), at draft's spacing: see COUPLED_RATE_*;
+#: dfsph-coupled-traction: the same solve with the free surface's traction, several times
+#: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
+#: two other runs, 2026-12-03)
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.1e5,
                        "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
+#: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
+#: bead at 3 / 4 / 6 particles per 0.2 mm gap: 36 / 45 / 77 GMRES and 194 / 294 / 636 inner
+#: iterations a step, 2026-12-03): its rate holds at draft's spacing and falls as
+#: (draft spacing / spacing)^1.3 (the fine bead took 2.9x draft's work per particle-step)
+COUPLED_RATE_SPACING_M = 0.2e-3 / 3
+COUPLED_RATE_EXPONENT = 1.3
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 #: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
 #: rate; the default bead runs 3.5x faster, the paper blocks (3x its viscosity iterations,
 #: and a compression correction in half of their steps) at 1.0-1.1x its time
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 2.1),
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.5),
                    "dfsph-coupled-traction": (1.3, 1.5)}
 
 
@@ -190,13 +197,14 @@ class Simulation:
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
         dt, limits = self._dt_guess(H)
+        dt *= run.dt_factor  # the run multiplies every limit by it
         steps = int(np.ceil((span - idle) / dt)) if dt > 0 else 0
         if self.plan.travel_m is not None and run.scheme == "dfsph":
             # the CFL step follows the melt's speed, which decays as a slump creeps: count the
             # steps that cover the travel at the CFL step plus those the longest step needs
             # (an upper bound on sum(max(v dt / (cfl dx), dt / max_dt)) over the run)
-            by_travel = int(np.ceil(self.plan.travel_m / (run.dfsph.cfl * 0.4 * dx)
-                                    + (span - idle) / limits["max"]))
+            by_travel = int(np.ceil((self.plan.travel_m / (run.dfsph.cfl * 0.4 * dx)
+                                     + (span - idle) / limits["max"]) / run.dt_factor))
             if by_travel < steps:
                 steps, dt = by_travel, (span - idle) / by_travel
         warn = []
@@ -223,6 +231,8 @@ class Simulation:
             return None
         threads = run.cpu_threads or os.cpu_count() or 2
         rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
+        if key == "dfsph-coupled":
+            rate *= (run.spacing_m / COUPLED_RATE_SPACING_M) ** COUPLED_RATE_EXPONENT
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
