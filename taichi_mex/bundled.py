@@ -47,8 +47,9 @@ def resolve_gcode(value, base_dir=None) -> Path:
 
     text = str(value)
     if text.startswith(PYGCD_PREFIX):
-        path = pygcd_example(text[len(PYGCD_PREFIX):])
-        if path.is_file():
+        name = text[len(PYGCD_PREFIX):]
+        path = pygcd_example(name)
+        if Path(name).name == name and path.is_file():  # a name, not a path out of the folder
             return path
         known = sorted(p.name for p in pygcd_example_dir().glob("*.gcode"))
         raise UserInputError(f"G-code '{text}': pyGCodeDecode has no example of that name; it has "

@@ -512,7 +512,7 @@ class DFSPHOptions:
         0.1, help="coupled solve, block_triangular: the inner viscous solve stops when its "
         "residual has fallen by this factor (-); it sets the cost, not the answer, which the "
         "outer tolerances decide. Looser costs fewer iterations where the outer solve still "
-        "converges (draft bead at 0.3: 41 GMRES / 84 inner a step against 36 / 193) and stalls "
+        "converges (draft bead at 0.3: 41 GMRES / 84 inner a step against 36 / 193, both at the momentum tolerance 1e-6) and stalls "
         "where it is hard (at 0.3 the collapse's first second and the fine bead's start did "
         "not converge in 20,000 iterations)",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))

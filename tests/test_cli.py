@@ -7,6 +7,7 @@ import sys
 import pytest
 
 from taichi_mex import bundled
+from taichi_mex.errors import UserInputError
 from taichi_mex.app.cli import main
 
 PLAN_KEYS = {"print_time_s", "extruding_time_s", "extruded_volume_mm3", "n_layers",
@@ -28,8 +29,10 @@ def test_pygcodedecode_examples_by_name(tmp_path):
     assert bundled.resolve_gcode("pygcodedecode:triangle") == bundled.pygcd_example("triangle.gcode")
     assert main(["pygcodedecode:triangle", "--dry-run", "--out", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "plan.json").read_text())["gcode"].endswith("triangle.gcode")
-    with pytest.raises(Exception, match="pygcodedecode:benchy"):
+    with pytest.raises(UserInputError, match="pygcodedecode:benchy"):
         bundled.resolve_gcode("pygcodedecode:nosuchpart")
+    with pytest.raises(UserInputError):
+        bundled.resolve_gcode("pygcodedecode:../data/triangle")
 
 
 def test_dry_run_selection_is_reported(tmp_path):

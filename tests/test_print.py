@@ -15,7 +15,7 @@ from taichi_mex import bundled
 from taichi_mex.app.cli import main
 from taichi_mex.options import EDACOptions, Material, RunOptions
 from taichi_mex.scenes.print import PrintScene
-from taichi_mex.sim.simulation import Simulation
+from taichi_mex.sim.simulation import STARTUP_S, Simulation
 from taichi_mex.spec import RunSpec
 
 PAPER = dict(scheme="edac", spacing_mm=0.1, edac=EDACOptions(sound_speed_m_s=6.0), progress=False)
@@ -169,8 +169,9 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
     # without the surface traction (how prints run it) the solve is several times cheaper
     plain = sim(**{"run.dfsph.creeping_solve": "coupled", "run.dfsph.stokes_surface_traction": False})
     assert "rates measured for dfsph-coupled (" in plain.describe_estimate()
-    assert 2 * split.estimate["wall_time_estimate_s"] < plain.estimate["wall_time_estimate_s"] \
-        < coupled.estimate["wall_time_estimate_s"]
+    def work(s):  # the estimate less the fixed start-up
+        return s.estimate["wall_time_estimate_s"] - STARTUP_S
+    assert 2 * work(split) < work(plain) < work(coupled)
     # its iterations a step grow with the resolution (36 / 77 GMRES a step at 3 / 6 per gap)
     fine = sim(**{"resolution": "fine", "run.dfsph.creeping_solve": "coupled",
                   "run.dfsph.stokes_surface_traction": False})

@@ -240,10 +240,6 @@ def window(region, *args):
     return [*map(str, BENCHY), "--region", region, *map(str, args), *QUIET, "--out", "{out}"]
 
 
-def _ratio(a, b, fmt="{:.2f}"):
-    return lambda r: "" if not r.get(b) or r.get(a) is None else fmt.format(r[a] / r[b])
-
-
 def _deposited(r) -> str:
     """The window's melt (the substrate below the layer, printed before the run, not counted)
     against the plan's commanded extrusion."""

@@ -309,7 +309,7 @@ METRICS = {
     "density_error_mean": "mean |rho/rho0 - 1| of interior melt at the end",
     "density_error_max": "largest |rho/rho0 - 1| of interior melt at the end",
     "paired_fraction": "melt with a melt neighbour closer than half a spacing (SPH pairing)",
-    "deposited_volume_mm3": "melt volume in the domain at the end (a window's substrate not counted)",
+    "deposited_volume_mm3": "melt volume in the domain at the end (solid blocks the run starts with, such as a window's substrate, not counted)",
     "commanded_volume_mm3": "volume the G-code commanded by the end",
     "cooling_time_s": "time until the slowest bead was all below the glass transition (heat on; "
                       "empty without heat or while a bead is still above it)",

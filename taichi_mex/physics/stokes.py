@@ -135,7 +135,7 @@ class CoupledStokes:
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
                        "surf_rhs",
-                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "pq", "alpha",
+                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
                        "dots_out")
 
@@ -197,8 +197,7 @@ class CoupledStokes:
         self.coef = ti.field(ti.f64, shape=self.m + 1)
         self.out3 = ti.Vector.field(3, ti.f64, shape=())
         self.total = ti.field(ti.f64, shape=())
-        self.pq = ti.field(ti.f64, shape=())  # the inner iteration's p . q and step length
-        self.alpha = ti.field(ti.f64, shape=())
+        self.alpha = ti.field(ti.f64, shape=())  # the inner iteration's step length
         # the inner solve's scalars stay on the device between its launches: r . z now and at
         # the start, the direction's beta, the iteration count and whether it has stopped
         self.cg_rz = ti.field(ti.f64, shape=())

@@ -40,7 +40,9 @@ MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.1e5,
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
 #: bead at 3 / 4 / 6 particles per 0.2 mm gap: 36 / 45 / 77 GMRES and 194 / 294 / 636 inner
 #: iterations a step, 2026-12-03): its rate holds at draft's spacing and falls as
-#: (draft spacing / spacing)^1.3 (the fine bead took 2.9x draft's work per particle-step)
+#: (draft spacing / spacing)^1.3 below it (standard and fine measured at 1.4x and 2.9x
+#: draft's work per particle-step, against 1.45x and 2.46x from the power); coarser spacings
+#: keep draft's rate (not measured, and not extrapolated)
 COUPLED_RATE_SPACING_M = 0.2e-3 / 3
 COUPLED_RATE_EXPONENT = 1.3
 #: kernel compilation and set-up before the first step (s), from the same runs
@@ -232,7 +234,7 @@ class Simulation:
         threads = run.cpu_threads or os.cpu_count() or 2
         rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
         if key == "dfsph-coupled":
-            rate *= (run.spacing_m / COUPLED_RATE_SPACING_M) ** COUPLED_RATE_EXPONENT
+            rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
