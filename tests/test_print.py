@@ -103,6 +103,10 @@ def test_a_window_on_a_substrate_reports_only_its_own_melt_as_deposited(tmp_path
     slice_mm3 = sim.inlet.n_slice * 0.1 ** 3
     assert s["commanded_volume_mm3"] > slice_mm3
     assert abs(s["deposited_volume_mm3"] - s["commanded_volume_mm3"]) <= 0.5 * slice_mm3 + 1e-9
+    # nor is the substrate part of the bead's section: its particles carry bead id -1
+    substrate = sim.state.numpy("bead_id", 1)
+    assert len(substrate) and (substrate == -1).all()
+    assert s.get("bead_material_area_mm2", 0.0) < 1.2 * 0.2 * 0.45  # one bead, not three below it
 
 
 def test_cli_run_writes_results(tmp_path, capsys):

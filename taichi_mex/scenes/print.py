@@ -297,10 +297,12 @@ class PrintScene:
         """Material cross-section of the bead through the section point, from the particle
         count in a window along the bead (exact: every particle is one lattice cell of melt),
         and robust height/width (99th/1st percentiles of the particle centres plus half a
-        spacing, so that one stray particle cannot set them)."""
+        spacing, so that one stray particle cannot set them). The melt this run deposited: a
+        window's substrate (bead id -1, printed before the run) is not the bead."""
         from taichi_mex.core.state import FLUID, SOLID
 
         x = sim.state.numpy("position", (FLUID, SOLID))
+        x = x[sim.state.numpy("bead_id", (FLUID, SOLID)) >= 0]
         if self.plan_section is None or len(x) == 0:
             return {}
         point, direction = self.plan_section
