@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from taichi_mex import backend
-from taichi_mex.options import Material, RunOptions, to_dict
+from taichi_mex.options import RESOLUTION_PRESETS, Material, RunOptions, to_dict
 from taichi_mex.errors import SimulationDiverged, UserInputError
 from taichi_mex.core.state import FLUID, PHASE_NAMES, PLATE, SOLID
 
@@ -43,7 +43,7 @@ MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.1e5,
 #: (draft spacing / spacing)^1.3 below it (standard and fine measured at 1.4x and 2.9x
 #: draft's work per particle-step, against 1.45x and 2.46x from the power); coarser spacings
 #: keep draft's rate (not measured, and not extrapolated)
-COUPLED_RATE_SPACING_M = 0.2e-3 / 3
+COUPLED_RATE_SPACING_M = RESOLUTION_PRESETS["draft"]["run"]["spacing_mm"] * 1e-3
 COUPLED_RATE_EXPONENT = 1.3
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
