@@ -42,7 +42,8 @@ def init(arch: str = "cpu", precision: str = "f32", threads: int | None = None,
             used = _init_gpu(precision, kwargs)
         else:
             ti.init(arch=ti.cpu, **kwargs)
-    _current.update(arch=used, precision=precision)
+    _current.update(arch=used, precision=precision,
+                    threads=int(ti.lang.impl.current_cfg().cpu_max_num_threads))
     return used
 
 
@@ -77,7 +78,8 @@ def gpu_available() -> bool:
 
 
 def current() -> dict:
-    """{'arch': ..., 'precision': ...} of the live Taichi runtime (empty before init)."""
+    """{'arch': ..., 'precision': ..., 'threads': CPU threads} of the live Taichi runtime
+    (empty before init)."""
     return dict(_current)
 
 

@@ -457,6 +457,14 @@ class DFSPHOptions:
                               check=Range(0.0, 1.0, lo_open=True))
     cg_chunk: int = opt(4, help="solver iterations per kernel launch (unrolled; iterations "
                         "after convergence do no work)", check=Range(1, 64, integer=True))
+    serial_rows: int | None = opt(
+        None, help="on a CPU, the coupled solve over fewer melt rows than this runs its loops on "
+        "the calling thread (rows; 0: always in parallel; None: 16,384 / the CPU threads). Each "
+        "parallel loop is a hand-off to the thread pool, 0.06-0.1 ms on the 2-core test "
+        "machine with one thread or two, where the bundled bead's solve at draft / standard "
+        "(1,376 / 3,276 melt rows at the end) took 29 / 90 s in one thread against 87 / 142 s "
+        "in parallel. The results do not depend on it",
+        check=Either(NONE, Range(0, 10**9, integer=True)))
     density_compression_only: bool = opt(
         False, help="the density solve corrects compression only, everywhere, as in the paper "
         "(with tension inside the melt allowed, see stabilisers.tension_relaxation)",

@@ -100,7 +100,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from taichi_mex.backend import ti
+from taichi_mex.backend import current, ti
 from taichi_mex.core.state import FLUID, INLET, SOLID
 
 log = logging.getLogger(__name__)
@@ -206,6 +206,10 @@ class CoupledStokes:
         self.cg_it = ti.field(ti.i32, shape=())
         self.cg_done = ti.field(ti.i32, shape=())
         self.chunk = int(opts.cg_chunk)
+        live = current()
+        self.on_cpu = live.get("arch", "cpu") == "cpu"
+        self.serial_rows = int(opts.serial_rows if opts.serial_rows is not None
+                               else 16384 // max(1, live.get("threads", 1)))
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
@@ -316,7 +320,8 @@ class CoupledStokes:
             acc -= self.V * ti.cast(self.K.F(ti.sqrt(r2)), ti.f64) * x.outer_product(x)
 
     @ti.func
-    def _surface_setup(self, n):
+    def _surface_setup(self, n, S: ti.template()):
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             M = ti.Matrix.zero(ti.f64, 3, 3)
@@ -421,14 +426,16 @@ class CoupledStokes:
                 acc[3 + d] += f[d]
 
     @ti.func
-    def _energy(self, n):
+    def _energy(self, n, S: ti.template()):
         """eacc = L(z's velocity) in the strain-energy form (ghost sums set), with the
         hourglass term: its gradient part rides on T (T_i + P_i), its pair part on hg."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             A = ti.Matrix.zero(ti.f64, 3, 3)
             self.grid.for_each_listed(i, self._strain_task, A)
             self.Ag[i] = A
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             A = self.Ag[i]
@@ -438,11 +445,13 @@ class CoupledStokes:
             self.grid.for_each_listed(i, self._hourglass_task, acc)
             self.T[i] = T + self._square(acc, 0)
             self.hg[i] = ti.Vector([acc[9], acc[10], acc[11]])
+        ti.loop_config(serialize=S)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             acc = ti.Vector.zero(ti.f64, 3)
             self.grid.for_each_neighbour(b, self._adjoint_task, acc)
             self.q[b] = acc
+        ti.loop_config(serialize=S)
         for slot in range(n):
             k = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 6)
@@ -505,8 +514,9 @@ class CoupledStokes:
             acc[6] += ui.dot(gi)
 
     @ti.func
-    def _apply(self, n, out: ti.template()):
+    def _apply(self, n, out: ti.template(), S: ti.template()):
         """out = A z on the melt rows (z: the preconditioned vector)."""
+        ti.loop_config(serialize=S)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
@@ -514,7 +524,8 @@ class CoupledStokes:
             self.ghost[b] = acc
         dt = self.dt[None]
         if ti.static(self.traction):
-            self._energy(n)
+            self._energy(n, S)
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 7)
@@ -528,8 +539,9 @@ class CoupledStokes:
                                 zi[2] - dt * acc[2] + dt * acc[5], self.dx * acc[6]])
 
     @ti.func
-    def _precondition(self, n, v: ti.template()):
+    def _precondition(self, n, v: ti.template(), S: ti.template()):
         """z = M^-1 v on the melt rows."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             vi = v[i]
@@ -598,16 +610,18 @@ class CoupledStokes:
             acc += f * cF * pi.dot(xij) * xij
 
     @ti.kernel
-    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32) -> ti.i32:
+    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template()) -> ti.i32:
         """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
         r = rhs, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it has stopped
         already (rz = 0, or no iteration allowed)."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, i]
             self.kpart[i] = -self.sigma[i] * v[3]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, self.kpart[i]])
         dt = self.dt[None]
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             g = ti.Vector([0.0, 0.0, 0.0], ti.f64)
@@ -618,7 +632,7 @@ class CoupledStokes:
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-        self._inner_blocks(n, 0)
+        self._inner_blocks(n, 0, S)
         ti.loop_config(serialize=True)
         for _ in range(1):
             rz = self.total[None]
@@ -638,9 +652,10 @@ class CoupledStokes:
         return m
 
     @ti.func
-    def _inner_blocks(self, n, which):
+    def _inner_blocks(self, n, which, S: ti.template()):
         """r . cg_z (which 0) or p . q (which 1): block by block, then the blocks in order."""
         nb = (n + self.block - 1) // self.block
+        ti.loop_config(serialize=S)
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -665,7 +680,7 @@ class CoupledStokes:
         return self.total[None]
 
     @ti.kernel
-    def _inner_iterations(self, n: ti.i32, tol2: ti.f64, max_it: ti.i32) -> ti.i32:
+    def _inner_iterations(self, n: ti.i32, tol2: ti.f64, max_it: ti.i32, S: ti.template()) -> ti.i32:
         """``cg_chunk`` conjugate-gradient iterations in one launch (a launch and a wait cost
         about as much as the sums on a bead's few thousand rows; iterations after the stop do
         no work), each: p = cg_z + beta p, q = A~ p, alpha = rz / p.q, x += alpha p,
@@ -673,17 +688,19 @@ class CoupledStokes:
         its start, or max_it iterations, or p . q <= 0 (rounding at convergence: A~ is
         positive definite), which leaves x and r alone. Returns whether it has stopped."""
         for _step in ti.static(range(self.chunk)):
+            ti.loop_config(serialize=S)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     self.cg_p[i] = self.cg_z[i] + self.cg_beta[None] * self.cg_p[i]
+            ti.loop_config(serialize=S)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     self.grid.for_each_listed(i, self._inner_task, acc)
                     self.cg_q[i] = self.cg_p[i] - self.dt[None] * acc
-            self._inner_blocks(n, 1)
+            self._inner_blocks(n, 1, S)
             ti.loop_config(serialize=True)
             for _ in range(1):
                 if self.cg_done[None] == 0:
@@ -692,6 +709,7 @@ class CoupledStokes:
                         self.alpha[None] = self.cg_rz[None] / pq
                     else:
                         self.cg_done[None] = 1
+            ti.loop_config(serialize=S)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
@@ -700,7 +718,7 @@ class CoupledStokes:
                     r = self.cg_r[i] - alpha * self.cg_q[i]
                     self.cg_r[i] = r
                     self.cg_z[i] = self._inner_binv(i) @ r
-            self._inner_blocks(n, 0)
+            self._inner_blocks(n, 0, S)
             ti.loop_config(serialize=True)
             for _ in range(1):
                 if self.cg_done[None] == 0:
@@ -713,33 +731,35 @@ class CoupledStokes:
         return self.cg_done[None]
 
     @ti.kernel
-    def _inner_finish(self, n: ti.i32, j: ti.i32):
+    def _inner_finish(self, n: ti.i32, j: ti.i32, S: ti.template()):
         """z = (x, k), kept as Z_j; w = A z."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             x = self.cg_x[i]
             z = ti.Vector([x[0], x[1], x[2], self.kpart[i]])
             self.z[i] = z
             self.Zb[j, i] = z
-        self._apply(n, self.w)
+        self._apply(n, self.w, S)
 
-    def _block_triangular(self, n: int, j: int) -> int:
+    def _block_triangular(self, n: int, j: int, S: bool) -> int:
         """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
         diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
         iterations."""
         tol2 = self.inner_tol ** 2
-        done = self._inner_begin(n, j, self.inner_max)
+        done = self._inner_begin(n, j, self.inner_max, S)
         while not done:
-            done = self._inner_iterations(n, tol2, self.inner_max)
-        self._inner_finish(n, j)
+            done = self._inner_iterations(n, tol2, self.inner_max, S)
+        self._inner_finish(n, j, S)
         return int(self.cg_it[None])
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
-    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64):
+    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64, S: ti.template()):
         """Walls near the melt and their Shepard sums; per-pair coefficients; preconditioner;
         right-hand side (v* = v_n + dt g, plus the walls' constant terms)."""
         self.dt[None] = dt
+        ti.loop_config(serialize=S)
         for i in range(self.state.n):
             self.shepard[i] = 0.0
             self.ghost[i] = ti.Vector.zero(ti.f64, 3)
@@ -754,21 +774,24 @@ class CoupledStokes:
                 if ph != FLUID and ph != INLET and (ph == SOLID or self.grid.wall_needed[b] == 1):
                     self.wall_row[self.n_walls[None]] = b
                     self.n_walls[None] += 1
+        ti.loop_config(serialize=S)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             s = 0.0
             self.grid.for_each_neighbour(b, self._shepard_task, s)
             self.shepard[b] = s
         if ti.static(self.traction):
-            self._surface_setup(n)
+            self._surface_setup(n, S)
             # the viscous term's constant part: L of zero melt velocities, walls at theirs
             self.affine[None] = 1
-            self._energy(n)
+            self._energy(n, S)
             self.affine[None] = 0
+            ti.loop_config(serialize=S)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.surf_rhs[i] = self.eacc[i]
         g = ti.Vector([gx, gy, gz])
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 13)
@@ -797,6 +820,7 @@ class CoupledStokes:
                 s = ti.min((1.0 - rho / self.rho0) / dt, 0.0)
             self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
         # the Schur approximation needs every melt row's B^-1: a loop of its own
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 4)
@@ -807,24 +831,27 @@ class CoupledStokes:
             self.sigma[i] = 1.0 / (dt * self.dx * s_ii) if s_ii > 0.0 else 0.0
 
     @ti.kernel
-    def _residual(self, n: ti.i32) -> ti.types.vector(3, ti.f64):
+    def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
         """w = rhs - A X (z = X: X is kept unpreconditioned); returns (|B^-1 w|^2 and
         |B^-1 rhs|^2 over the momentum rows, largest |continuity residual| as a density error
         dt |D(u) - s|). B^-1 (the diagonal blocks' inverse) turns both into velocities: the
         right-hand side is dominated by the walls' terms, ~ nu dt / dx^2 times the wall speed,
         so an unscaled relative residual of 1e-6 let velocities be wrong by their own size."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = self.X[i]
-        self._apply(n, self.w)
+        self._apply(n, self.w, S)
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[i] = self.rhs[i] - self.w[i]
-        return self._norms(n)
+        return self._norms(n, S)
 
     @ti.func
-    def _norms(self, n):
+    def _norms(self, n, S: ti.template()):
         nb = (n + self.block - 1) // self.block
+        ti.loop_config(serialize=S)
         for b in range(nb):
             su = ti.cast(0.0, ti.f64)
             sb = ti.cast(0.0, ti.f64)
@@ -852,19 +879,21 @@ class CoupledStokes:
         return self.out3[None]
 
     @ti.kernel
-    def _arnoldi_apply(self, n: ti.i32, j: ti.i32):
+    def _arnoldi_apply(self, n: ti.i32, j: ti.i32, S: ti.template()):
         """w = A M^-1 v_j."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[i] = self.basis[j, i]
-        self._precondition(n, self.w)
-        self._apply(n, self.w)
+        self._precondition(n, self.w, S)
+        self._apply(n, self.w, S)
 
     @ti.kernel
-    def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1)) -> ti.f64:
+    def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1), S: ti.template()) -> ti.f64:
         """One pass of classical Gram-Schmidt in one launch: out_l = v_l . w for l = 0..j
         (block by block, then the blocks in order), w -= sum_l out_l v_l; returns |w|^2."""
         nb = (n + self.block - 1) // self.block
+        ti.loop_config(serialize=S)
         for l, b in ti.ndrange(j + 1, nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -878,12 +907,13 @@ class CoupledStokes:
                 s += self.part[l, b]
             self.coef[l] = s
             out[l] = s
-        self._orthogonalise(n, j)
-        return self._w_sum(n, False)
+        self._orthogonalise(n, j, S)
+        return self._w_sum(n, False, S)
 
     @ti.func
-    def _orthogonalise(self, n, j):
+    def _orthogonalise(self, n, j, S: ti.template()):
         """w -= sum_l coef_l v_l."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = self.w[i]
@@ -892,15 +922,17 @@ class CoupledStokes:
             self.w[i] = acc
 
     @ti.kernel
-    def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64):
+    def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64, S: ti.template()):
         """v_j = w / norm."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.basis[j, i] = self.w[i] / norm
 
     @ti.func
-    def _combine(self, n, k, vectors: ti.template()):
+    def _combine(self, n, k, vectors: ti.template(), S: ti.template()):
         """w = sum_l coef_l vectors_l."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 4)
@@ -909,21 +941,23 @@ class CoupledStokes:
             self.w[i] = acc
 
     @ti.kernel
-    def _update(self, n: ti.i32, k: ti.i32, flexible: ti.template()):
+    def _update(self, n: ti.i32, k: ti.i32, flexible: ti.template(), S: ti.template()):
         """X += sum_l coef_l Z_l (flexible GMRES keeps the preconditioned vectors), or
         X += M^-1 (sum_l coef_l v_l)."""
         if ti.static(flexible):
-            self._combine(n, k, self.Zb)
+            self._combine(n, k, self.Zb, S)
         else:
-            self._combine(n, k, self.basis)
-            self._precondition(n, self.w)
+            self._combine(n, k, self.basis, S)
+            self._precondition(n, self.w, S)
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.X[i] += self.w[i] if ti.static(flexible) else self.z[i]
 
     @ti.kernel
-    def _warm(self, n: ti.i32, kappa: ti.template(), from_state: ti.i32):
+    def _warm(self, n: ti.i32, kappa: ti.template(), from_state: ti.i32, S: ti.template()):
         """X0: the melt's present velocity (v_n) and, where given, last step's k."""
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             v = ti.cast(self.state.v[i], ti.f64)
@@ -931,7 +965,8 @@ class CoupledStokes:
             self.X[i] = ti.Vector([v[0], v[1], v[2], k])
 
     @ti.kernel
-    def _finish(self, n: ti.i32, kappa: ti.template()):
+    def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
+        ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             x = self.X[i]
@@ -945,6 +980,13 @@ class CoupledStokes:
         buf[: len(values)] = values
         self.coef.from_numpy(buf)
 
+    def serial(self, n: int) -> bool:
+        """Whether a solve over n rows runs its loops on the calling thread (a template
+        argument of every kernel here: each choice is compiled once). Every loop writes its
+        own rows and every sum goes block by block in a fixed order, so both choices give
+        the same bits; a GPU always runs them in parallel."""
+        return self.on_cpu and n < self.serial_rows
+
     # ------------------------------------------------------------------ public
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
               warm_pressure: bool = True) -> StokesResult:
@@ -953,20 +995,21 @@ class CoupledStokes:
         built the neighbour lists, updated ``rows`` and set the densities."""
         n = self.rows.n
         inner = 0
-        self._setup(n, float(dt), *map(float, gravity_m_s2))
-        self._warm(n, kappa, 1 if warm_pressure else 0)
+        S = self.serial(n)
+        self._setup(n, float(dt), *map(float, gravity_m_s2), S)
+        self._warm(n, kappa, 1 if warm_pressure else 0, S)
         iterations = 0
         m = self.m
         while True:
-            ru, rb, rmax = self._residual(n).to_numpy()
+            ru, rb, rmax = self._residual(n, S).to_numpy()
             rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
             done = rel <= self.tol_u and rmax <= self.tol_rho
             log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g", iterations,
                       rel, rmax)
-            beta = float(np.sqrt(self._sum(n, False)))  # |w|: the Krylov space's start
+            beta = float(np.sqrt(self._sum(n, False, S)))  # |w|: the Krylov space's start
             if done or iterations >= self.max_iterations or beta == 0.0:
                 break  # w holds the residual of X: the result is read from it below
-            self._store(n, 0, beta)
+            self._store(n, 0, beta, S)
             H = np.zeros((m + 1, m))
             cs, sn = np.zeros(m), np.zeros(m)
             g = np.zeros(m + 1)
@@ -974,16 +1017,16 @@ class CoupledStokes:
             k = 0
             for j in range(m):
                 if self.flexible:
-                    inner += self._block_triangular(n, j)
+                    inner += self._block_triangular(n, j, S)
                 else:
-                    self._arnoldi_apply(n, j)
+                    self._arnoldi_apply(n, j, S)
                 h = np.zeros(j + 2)
                 for _ in range(2):  # classical Gram-Schmidt, twice (Giraud et al. 2005)
-                    norm2 = self._gram_schmidt(n, j, self.dots_out)
+                    norm2 = self._gram_schmidt(n, j, self.dots_out, S)
                     h[: j + 1] += self.dots_out[: j + 1]
                 h[j + 1] = breakdown = float(np.sqrt(norm2))
                 if breakdown > 0.0:
-                    self._store(n, j + 1, breakdown)
+                    self._store(n, j + 1, breakdown, S)
                 for l in range(j):  # earlier Givens rotations
                     a, b = h[l], h[l + 1]
                     h[l], h[l + 1] = cs[l] * a + sn[l] * b, -sn[l] * a + cs[l] * b
@@ -1005,19 +1048,20 @@ class CoupledStokes:
                     break
             y = np.linalg.solve(np.triu(H[:k, :k]), g[:k]) if k else np.zeros(0)
             self._set_coef(y)
-            self._update(n, k, self.flexible)
-        mean = self._sum(n, True) / max(n, 1)
-        self._finish(n, kappa)
+            self._update(n, k, self.flexible, S)
+        mean = self._sum(n, True, S) / max(n, 1)
+        self._finish(n, kappa, S)
         return StokesResult(bool(done), iterations, float(rel), float(rmax), mean, inner)
 
     @ti.kernel
-    def _block_sums(self, n: ti.i32, continuity: ti.template()) -> ti.f64:
-        return self._w_sum(n, continuity)
+    def _block_sums(self, n: ti.i32, continuity: ti.template(), S: ti.template()) -> ti.f64:
+        return self._w_sum(n, continuity, S)
 
     @ti.func
-    def _w_sum(self, n, continuity: ti.template()):
+    def _w_sum(self, n, continuity: ti.template(), S: ti.template()):
         """sum of |w|^2, or of |w_k| (the continuity rows): block by block, then in order."""
         nb = (n + self.block - 1) // self.block
+        ti.loop_config(serialize=S)
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -1029,26 +1073,28 @@ class CoupledStokes:
             self.part[0, b] = s
         return self._in_order(self.part, 0, nb)
 
-    def _sum(self, n: int, continuity: bool) -> float:
-        return float(self._block_sums(n, continuity))
+    def _sum(self, n: int, continuity: bool, S: bool) -> float:
+        return float(self._block_sums(n, continuity, S))
 
     # ------------------------------------------------------------------ diagnostics
     @ti.kernel
-    def _wall_force(self, n: ti.i32) -> ti.types.vector(3, ti.f64):
+    def _wall_force(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
         """-(the force on the flagged walls): the melt's momentum they take."""
         if ti.static(self.traction):
             # the strain-energy form: -dPhi/dv_b = -rho0 V (2 or 1) q_b with the whole
             # strain (walls' velocities in it) of the solution
+            ti.loop_config(serialize=S)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.z[i] = self.X[i]
+            ti.loop_config(serialize=S)
             for wslot in range(self.n_walls[None]):
                 b = self.wall_row[wslot]
                 acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                 self.grid.for_each_neighbour(b, self._ghost_task, acc)
                 self.ghost[b] = acc
             self.affine[None] = 1
-            self._energy(n)
+            self._energy(n, S)
             self.affine[None] = 0
         f = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
@@ -1072,7 +1118,7 @@ class CoupledStokes:
         flags = np.zeros(self.state.capacity, dtype=np.int32)
         flags[: len(selected)] = selected
         self.force_flag.from_numpy(flags)
-        return -self._wall_force(self.rows.n).to_numpy()
+        return -self._wall_force(self.rows.n, self.serial(self.rows.n)).to_numpy()
 
     @ti.func
     def _force_task(self, i, slot, j, xij, acc: ti.template()):

@@ -30,19 +30,21 @@ _TEMP_FACTOR = 2.0
 #: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
 #: dfsph-coupled: the bundled bead at draft with --creeping-solve coupled --no-surface-traction
-#: and the momentum tolerance 1e-5 (89 s for 602 steps beside other runs; benchy's 4 x 4 mm
-#: window's first second 131-265 s; 2026-12-03), at draft's spacing: see COUPLED_RATE_*;
+#: and the momentum tolerance 1e-5, its loops in one thread below serial_rows (34.6 s for 602
+#: steps, compilation included; standard 98.6 s for 824; 2026-12-03), at draft's spacing:
+#: see COUPLED_RATE_*;
 #: dfsph-coupled-traction: the same solve with the free surface's traction, several times
 #: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
 #: two other runs, 2026-12-03)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.1e5,
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.5e5,
                        "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
 #: bead at 3 / 4 / 6 particles per 0.2 mm gap: 36 / 45 / 77 GMRES and 194 / 294 / 636 inner
 #: iterations a step, 2026-12-03): its rate holds at draft's spacing and falls as
-#: (draft spacing / spacing)^1.3 below it (standard and fine measured at 1.4x and 2.9x
-#: draft's work per particle-step, against 1.45x and 2.46x from the power); coarser spacings
-#: keep draft's rate (not measured, and not extrapolated)
+#: (draft spacing / spacing)^1.3 below it (standard measured at 1.44x draft's work per
+#: particle-step in one thread, 1.4x in parallel, fine at 2.9x in parallel, against 1.45x
+#: and 2.46x from the power); coarser spacings keep draft's rate (not measured, and not
+#: extrapolated)
 COUPLED_RATE_SPACING_M = RESOLUTION_PRESETS["draft"]["run"]["spacing_mm"] * 1e-3
 COUPLED_RATE_EXPONENT = 1.3
 #: kernel compilation and set-up before the first step (s), from the same runs
