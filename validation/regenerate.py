@@ -293,6 +293,16 @@ CASES = {
                                          "--creeping-solve", "coupled"))],
         COMMON + HUPPERT + COUPLED_SOLVE,
         folder="collapse", tag="coupled"),
+    "collapse_coupled_fine": Case(
+        "the coupled collapse at finer spacings (10 Pa s, 30 s), where the split solve blows up",
+        [(f"{dx} mm, 10 Pa s, 30 s, coupled", scene(
+            "collapse", *CYLINDER, "--viscosity", 10, "--spacing-mm", dx, "--until", 30,
+            "--creeping-solve", "coupled")) for dx in (0.4, 0.3)],
+        [("0.6 mm, 10 Pa s, 6 s, coupled", scene(
+            "collapse", *CYLINDER, "--viscosity", 10, "--spacing-mm", 0.6, "--until", 6,
+            "--creeping-solve", "coupled"))],
+        COMMON + HUPPERT + COUPLED_SOLVE,
+        folder="collapse", tag="coupled_fine"),
     "windows": Case(
         "a real slicer's part: benchy (PrusaSlicer, pyGCodeDecode's example), layer 3, the 4 x 4 mm "
         "window 88-92 mm x 88-92 mm at draft, the coupled solve against the split one",
