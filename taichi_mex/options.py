@@ -485,10 +485,11 @@ class DFSPHOptions:
     step_retries: int = opt(4, help="at most this many halvings of one step",
                             check=Range(0, 30, integer=True))
     creeping_solve: str = opt(
-        "split", help="creeping steps: 'split' (implicit viscosity, then the pressure solves, "
-        "with the stabilisers) or 'coupled' (viscous stress and pressure in one saddle-point "
-        "solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps halved or the "
-        "run stopped)", check=OneOf("split", "coupled"), flag="--creeping-solve",
+        "split", help="creeping steps: 'coupled' (viscous stress and pressure in one "
+        "saddle-point solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps "
+        "halved or the run stopped; a print's default) or 'split' (implicit viscosity, then "
+        "the pressure solves, with the stabilisers, which delete flung melt and clamp its "
+        "speed; other scenes' default)", check=OneOf("split", "coupled"), flag="--creeping-solve",
         names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
         1e-5, help="coupled solve: relative residual of the momentum rows it stops at (-). "
@@ -528,11 +529,12 @@ class DFSPHOptions:
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
         "iterations per outer iteration", check=Range(1, 10**5, integer=True))
     stokes_surface_traction: bool = opt(
-        True, help="coupled solve: a free surface takes no viscous traction (the viscous term "
-        "is the derivative of a dissipation built on the corrected strain rate, whose boundary "
-        "term is the pressure's, physics/stokes.py); off: Weiler's pair sum, whose surface "
-        "carries no viscous flux. Prints need it off for now: the bundled bead runs with it but "
-        "comes out 1.49x as wide and rises 0.12 mm over the gap behind the nozzle, at 8x the cost",
+        True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
+        "viscous term is the derivative of a dissipation built on the corrected strain rate, "
+        "whose boundary term is the pressure's, physics/stokes.py); off: Weiler's pair sum, "
+        "whose surface carries no viscous flux. Off in a print by default: the bundled bead "
+        "runs with it but comes out 1.49x as wide and rises 0.12 mm over the gap behind the "
+        "nozzle, at 8x the cost",
         check=Flag(),
         flag="--no-surface-traction", const=False)
     stokes_zero_energy_control: float = opt(

@@ -165,13 +165,14 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
     def sim(**changes):
         return Simulation.from_spec(RunSpec.create("print", changes={
             "resolution": "draft", "run.progress": False, "run.cpu_threads": 2, **changes}))
-    split = sim()
-    coupled = sim(**{"run.dfsph.creeping_solve": "coupled"})
+    split = sim(**{"run.dfsph.creeping_solve": "split"})
+    coupled = sim(**{"run.dfsph.stokes_surface_traction": True})
     assert coupled.estimate["steps_estimate"] == split.estimate["steps_estimate"]
     assert coupled.estimate["wall_time_estimate_s"] > 3 * split.estimate["wall_time_estimate_s"]
     assert "rates measured for dfsph-coupled-traction" in coupled.describe_estimate()
-    # without the surface traction (how prints run it) the solve is several times cheaper
-    plain = sim(**{"run.dfsph.creeping_solve": "coupled", "run.dfsph.stokes_surface_traction": False})
+    # without the surface traction (a print's default) the solve is several times cheaper
+    plain = sim()
+    assert (plain.run_opts.dfsph.creeping_solve, plain.run_opts.dfsph.stokes_surface_traction) == ("coupled", False)
     assert "rates measured for dfsph-coupled (" in plain.describe_estimate()
     def work(s):  # the estimate less the fixed start-up
         return s.estimate["wall_time_estimate_s"] - STARTUP_S
@@ -179,8 +180,7 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
     assert work(plain) / work(split) == pytest.approx(MEASURED_RATE_2CORE["dfsph"]
                                                       / MEASURED_RATE_2CORE["dfsph-coupled"])
     # its iterations a step grow with the resolution (36 / 77 GMRES a step at 3 / 6 per gap)
-    fine = sim(**{"resolution": "fine", "run.dfsph.creeping_solve": "coupled",
-                  "run.dfsph.stokes_surface_traction": False})
+    fine = sim(resolution="fine")
     per_step = lambda s: s.estimate["wall_time_estimate_s"] / s.estimate["steps_estimate"]  # noqa: E731
     assert per_step(fine) > 2.5 * 2 ** 1.3 * per_step(plain)  # 2.5x the particles, and more
 
