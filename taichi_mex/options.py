@@ -107,18 +107,21 @@ NONE = OneOf(None)
 
 def opt(default=MISSING, *, help: str, check: Check | None = None, flag: tuple | str | None = None,
         names: tuple = (), parse=None, implies: dict | None = None, const=MISSING,
-        flag_help: str | None = None, repeat: bool = False, factory=None):
+        flag_help: str | None = None, repeat: bool = False, factory=None,
+        flag_not: str | None = None):
     """A declared option field.
 
     ``help`` states the meaning and unit. ``flag``: the command-line spelling(s); ``parse``
     turns the flag's text into a value (default: the field's type); ``const``: a flag that
-    takes no value and sets this one. ``names``: flat sweep names besides the dotted path.
+    takes no value and sets this one; ``flag_not``: a second such flag that sets the opposite
+    of a boolean ``const``. ``names``: flat sweep names besides the dotted path.
     ``implies``: other options (dotted paths from the run description's root) set when this
     one is given by a user. ``flag_help``: the flag's own help where it differs (a flag that
     switches something off). A nested group of options is declared with ``factory``."""
     meta = {"help": help, "check": check, "flag": (flag,) if isinstance(flag, str) else flag,
             "flag_help": flag_help, "repeat": repeat,
-            "names": tuple(names), "parse": parse, "implies": dict(implies or {}), "const": const}
+            "names": tuple(names), "parse": parse, "implies": dict(implies or {}), "const": const,
+            "flag_not": flag_not}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
     return field(default=default, metadata=meta)
@@ -463,7 +466,7 @@ class DFSPHOptions:
         "parallel loop is a hand-off to the thread pool, 0.06-0.1 ms on the 2-core test "
         "machine with one thread or two, where the bundled bead's solve at draft / standard "
         "(1,376 / 3,276 melt rows at the end) took 29 / 90 s in one thread against 87 / 142 s "
-        "in parallel. The results do not depend on it",
+        "in parallel, with the same iterations and results to the bit",
         check=Either(NONE, Range(0, 10**9, integer=True)))
     density_compression_only: bool = opt(
         False, help="the density solve corrects compression only, everywhere, as in the paper "
@@ -487,9 +490,9 @@ class DFSPHOptions:
     creeping_solve: str = opt(
         "split", help="creeping steps: 'coupled' (viscous stress and pressure in one "
         "saddle-point solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps "
-        "halved or the run stopped; a print's default) or 'split' (implicit viscosity, then "
-        "the pressure solves, with the stabilisers, which delete flung melt and clamp its "
-        "speed; other scenes' default)", check=OneOf("split", "coupled"), flag="--creeping-solve",
+        "halved or the run stopped; the default of prints and of the Stokes scenes) or "
+        "'split' (implicit viscosity, then the pressure solves, with the stabilisers, which "
+        "delete flung melt and clamp its speed; the default of the other scenes)", check=OneOf("split", "coupled"), flag="--creeping-solve",
         names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
         1e-5, help="coupled solve: relative residual of the momentum rows it stops at (-). "
@@ -536,7 +539,9 @@ class DFSPHOptions:
         "runs with it but comes out 1.49x as wide and rises 0.12 mm over the gap behind the "
         "nozzle, at 8x the cost",
         check=Flag(),
-        flag="--no-surface-traction", const=False)
+        flag="--no-surface-traction", const=False, flag_not="--surface-traction",
+        flag_help="coupled solve: Weiler's pair sum at the free surface, which carries no viscous "
+        "flux, in place of the traction-free condition (a print's default)")
     stokes_zero_energy_control: float = opt(
         1.0, help="coupled solve with the surface traction: weight of Ganzenmueller's (2015) "
         "hourglass term, Weiler's pair dissipation of what the corrected velocity gradient "

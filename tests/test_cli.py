@@ -23,6 +23,25 @@ def test_dry_run_on_bundled_default(tmp_path, capsys):
     assert "selected layers 1" in capsys.readouterr().out
 
 
+def test_a_print_takes_the_coupled_solve_and_either_surface_condition():
+    """A print's creeping melt takes the coupled solve without the surface traction by
+    default; --creeping-solve split and --surface-traction change that, a collapse keeps
+    the split solve."""
+    from taichi_mex.app.cli import print_parser, spec_from_args
+
+    def solve(*argv):
+        parser, dests = print_parser()
+        d = spec_from_args(parser.parse_args(list(argv)), dests, "print").run.dfsph
+        return d.creeping_solve, d.stokes_surface_traction
+
+    assert solve() == ("coupled", False)
+    assert solve("--surface-traction") == ("coupled", True)
+    assert solve("--surface-traction", "--no-surface-traction") == ("coupled", False)
+    assert solve("--creeping-solve", "split")[0] == "split"
+    from taichi_mex.spec import RunSpec
+    assert RunSpec.create("collapse").run.dfsph.creeping_solve == "split"
+
+
 def test_pygcodedecode_examples_by_name(tmp_path):
     """pygcodedecode:NAME is one of pyGCodeDecode's example prints (the window benchmarks run
     its benchy); an unknown name lists the ones there are."""

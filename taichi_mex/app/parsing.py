@@ -73,6 +73,10 @@ def add_spec_flags(parser: argparse.ArgumentParser, scene: str) -> set[str]:
         if const is not MISSING:
             group.add_argument(*flags, dest=path, action="store_const", const=const,
                                default=argparse.SUPPRESS, help=help_text)
+            if f.metadata.get("flag_not"):
+                group.add_argument(f.metadata["flag_not"], dest=path, action="store_const",
+                                   const=not const, default=argparse.SUPPRESS,
+                                   help=f.metadata["help"].replace("%", "%%"))
         else:
             parse = f.metadata.get("parse")
             hint = typing.get_type_hints(_owner(path, scene))[f.name]

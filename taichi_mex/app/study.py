@@ -21,7 +21,10 @@ from taichi_mex.post.output import read_json
 #: its reference when the scene has no analytic answer
 LADDERS = {
     "bead": {
-        "base": {"gcode": "single_bead", "deposit_for_s": 0.13, "snapshots": False},
+        # the split creeping solve (the ladder's table measures it; a print's default until
+        # 2026-12-03), and the coupled solve, a print's default now, at draft and standard
+        "base": {"gcode": "single_bead", "deposit_for_s": 0.13, "snapshots": False,
+                 "run.dfsph.creeping_solve": "split"},
         "runs": [
             ("dfsph dx=0.1", {"spacing_mm": 0.1}),
             ("dfsph dx=0.067 (draft)", {"spacing_mm": 0.0667}),
@@ -31,6 +34,10 @@ LADDERS = {
             ("dfsph dx=0.05 unscaled, divergence solve on",
              {"spacing_mm": 0.05, "viscosity_scale": 1.0, "run.dfsph.divergence_solve": True}),
             ("dfsph dx=0.033 (fine)", {"spacing_mm": 0.0333}),
+            ("coupled dx=0.067 (draft)", {"spacing_mm": 0.0667, "run.dfsph.creeping_solve": "coupled",
+                                          "run.dfsph.stokes_surface_traction": False}),
+            ("coupled dx=0.05 (standard)", {"spacing_mm": 0.05, "run.dfsph.creeping_solve": "coupled",
+                                            "run.dfsph.stokes_surface_traction": False}),
             ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
         ],
         "quick": [

@@ -137,7 +137,9 @@ class CoupledStokes:
                        "surf_rhs",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
-                       "dots_out")
+                       "dots_out",
+                       # the machine's, not the run's: a resume elsewhere takes its own
+                       "on_cpu", "serial_rows")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
                  spacing_m: float, rows, opts):
@@ -983,8 +985,9 @@ class CoupledStokes:
     def serial(self, n: int) -> bool:
         """Whether a solve over n rows runs its loops on the calling thread (a template
         argument of every kernel here: each choice is compiled once). Every loop writes its
-        own rows and every sum goes block by block in a fixed order, so both choices give
-        the same bits; a GPU always runs them in parallel."""
+        own rows and every sum goes block by block in a fixed order, so the two choices
+        differ only in how the compiler arranged each loop's arithmetic: measured identical
+        on the film (test) and the bundled bead; a GPU always runs them in parallel."""
         return self.on_cpu and n < self.serial_rows
 
     # ------------------------------------------------------------------ public

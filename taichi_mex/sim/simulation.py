@@ -197,6 +197,12 @@ class Simulation:
         max_nbr = self._max_neighbours(factor * (1.0 + skin))
         cached = getattr(SOLVERS[run.scheme], "cached_per_neighbour", 0)  # reals per list slot
         per_particle = int(_TEMP_FACTOR * 40 * fp + (4 + cached * fp) * max_nbr)
+        if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
+            # physics/stokes.py, in f64: the Krylov basis (restart + 1 4-vectors) and the
+            # flexible GMRES's preconditioned vectors (restart), a cached coefficient per list
+            # slot, and about 20 vectors and matrices of scratch
+            m = run.dfsph.stokes_restart
+            per_particle += (2 * m + 1) * 32 + 8 * max_nbr + 600
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
@@ -240,8 +246,8 @@ class Simulation:
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
-        """The measured rate that applies: the coupled creeping solve costs several times the
-        split one per particle-step."""
+        """The measured rate that applies: the coupled creeping solve has its own (with the
+        surface traction several times the split one's per particle-step)."""
         run = self.run_opts
         if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
             return "dfsph-coupled-traction" if run.dfsph.stokes_surface_traction else "dfsph-coupled"
