@@ -310,6 +310,26 @@ def test_after_ctrl_c_a_run_started_without_a_record_is_interrupted(tmp_path):
     assert said == ["waiting up to 0 s for 1 interrupted run(s) to stop"]
 
 
+def test_ctrl_c_during_the_taichi_import_is_held_back_until_it_is_done():
+    """A job imports Taichi with Ctrl-C held back (jobs.sigint_deferred): Taichi turns an
+    interrupted library load into ImportError, and a sweep's Ctrl-C in that moment recorded
+    the run as failed (CI, 2026-12-03). The signal sent inside the block arrives as
+    KeyboardInterrupt when the block ends, not during it; a fresh process, as a job is."""
+    code = (
+        "import os, signal\n"
+        "from taichi_mex.app.jobs import sigint_deferred\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "reached = False\n"
+        "try:\n"
+        "    with sigint_deferred():\n"
+        "        os.kill(os.getpid(), signal.SIGINT)\n"
+        "        reached = True\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted after the block:', reached)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "interrupted after the block: True", out.stdout + out.stderr
+
+
 @pytest.mark.parametrize("example", sorted(p.name for p in (REPO / "examples").glob("study_*.toml")))
 def test_example_studies_are_valid(example, tmp_path, capsys):
     assert main(["sweep", str(REPO / "examples" / example), "--dry-run", "--out", str(tmp_path)]) == 0

@@ -449,6 +449,30 @@ def timestamp() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
+@contextlib.contextmanager
+def sigint_deferred():
+    """Hold Ctrl-C back until the block ends, then act on it as the handler before would
+    have (KeyboardInterrupt for Python's own). Taichi's import catches whatever interrupts the
+    loading of its library and raises ImportError ('initialization failed'): a sweep's
+    Ctrl-C that fell in that moment recorded the run as failed, not interrupted (a CI run,
+    2026-12-03). Python runs signal handlers in the main thread only; elsewhere the block
+    runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        if callable(previous):
+            previous(signal.SIGINT, None)
+        elif previous == signal.SIG_DFL:
+            os.kill(os.getpid(), signal.SIGINT)
+
+
 def run_print_job(params: dict, out_dir, *, base_dir=None, batch: str | None = None) -> dict:
     """Run one job in this process and return its record (also written as ``job.json``).
 
@@ -466,6 +490,8 @@ def run_print_job(params: dict, out_dir, *, base_dir=None, batch: str | None = N
     summary = meso = None
     nozzle_speed = None
     try:
+        with sigint_deferred():
+            import taichi_mex.backend  # noqa: F401 - Taichi's import, which Ctrl-C would tear
         res = resolve(params, base_dir)
         job = build_job(res, out_dir)
         record["job_notes"] = job.notes
