@@ -466,9 +466,9 @@ class DFSPHOptions:
         "parallel loop is a hand-off to the thread pool, 0.06-0.1 ms on the 2-core test "
         "machine with one thread or two, where the bundled bead's solve at draft / standard "
         "(1,376 / 3,276 melt rows at the end) took 29 / 90 s in one thread against 87 / 142 s "
-        "in parallel. The results agree to the solve's tolerance: to the bit on the bundled "
-        "bead and the squeeze film, while on benchy's window the two compiled loops rounded "
-        "differently (32.4 against 32.9 GMRES iterations a step over 691 steps)",
+        "in parallel. The results agree to the solve's tolerance: to the bit on the squeeze "
+        "film, with the same iteration counts on the bundled bead, while on benchy's window "
+        "the two compiled loops rounded differently (32.4 against 32.9 GMRES iterations a step over 691 steps)",
         check=Either(NONE, Range(0, 10**9, integer=True)))
     density_compression_only: bool = opt(
         False, help="the density solve corrects compression only, everywhere, as in the paper "
@@ -494,8 +494,8 @@ class DFSPHOptions:
         "saddle-point solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps "
         "halved or the run stopped; the default of prints and of the Stokes scenes) or "
         "'split' (implicit viscosity, then the pressure solves, with the stabilisers, which "
-        "delete flung melt and clamp its speed; the default of the other scenes)", check=OneOf("split", "coupled"), flag="--creeping-solve",
-        names=("creeping_solve",))
+        "delete flung melt and clamp its speed; the default of the other scenes)",
+        check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
         1e-5, help="coupled solve: relative residual of the momentum rows it stops at (-). "
         "1e-5 against 1e-6: 26-30 % fewer iterations (draft bead 27 / 143 GMRES / inner a step "

@@ -1001,7 +1001,7 @@ class CoupledStokes:
         argument of every kernel here: each choice is compiled once). Every loop writes its
         own rows and every sum goes block by block in a fixed order, so the two choices
         differ only in how the compiler arranged each loop's arithmetic: identical on the
-        film (test) and the bundled bead, not on benchy's window (32.4 against 32.9 GMRES
+        film (test), the same iteration counts on the bundled bead, not on benchy's window (32.4 against 32.9 GMRES
         iterations a step over 691 steps, both converged); a GPU always runs them in
         parallel."""
         return self.on_cpu and n < self.serial_rows
