@@ -300,6 +300,10 @@ class Material:
     emissivity: float = opt(0.92, help="surface emissivity (-)", check=Range(0.0, 1.0))
     solid_density_kg_m3: float = opt(1240.0, help="room-temperature solid density (kg/m^3; for "
                                      "reports: the melt density sets the mass)", check=Positive())
+    bulk_modulus_pa: float = opt(
+        1.5e9, help="melt bulk modulus K (Pa): the coupled solve's continuity rows let the "
+        "melt's volume change by dp / K, as it does (physics/stokes.py, 'Compressibility'); "
+        "Tait's law gives K = B(T) / 0.0894, B ~ 100-200 MPa for polymer melts", check=Positive())
     surface_tension_n_m: float = opt(0.035, help="melt surface tension (N/m; recorded, not yet "
                                      "modelled)", check=NonNegative())
 
@@ -555,6 +559,11 @@ class DFSPHOptions:
         "'none', nothing (divergence-free steps). The kernel sum also reads a stretched "
         "arrangement as compressed (validation/extension: +6 % at a Hencky strain of 0.36)",
         check=OneOf("summation", "none"), flag="--density-source")
+    stokes_compressible: bool = opt(
+        True, help="coupled solve: the melt's volume changes by dp / K (material.bulk_modulus_pa) "
+        "in a step; off: incompressible rows, which a fragment of one or two particles at the "
+        "edge of its neighbours' kernels makes near-singular (benchy's window stalled at "
+        "t = 181.365 s, physics/stokes.py)", check=Flag())
     stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers of the 'split' solve "
                                         "(no cited source; 'coupled' needs none)",
                                         factory=DFSPHStabilisers)

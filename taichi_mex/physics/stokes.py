@@ -92,6 +92,20 @@ but comes out 1.49x the slicer's width with melt 0.12 mm over the gap behind the
 kernel sums down to 0.56 rho0 at its surface, at 177 GMRES / 1,790 inner iterations a step
 (47 / 249 with Weiler's) and 8.4x the wall time.
 
+Compressibility: the continuity rows are the melt's rate form of p = K (rho / rho0 - 1),
+dt D(u) - (k - k_n) / c^2 = dt s with c^2 = K / rho0 (material.bulk_modulus_pa; Tait's law
+gives K ~ 1-2 GPa for polymer melts). With incompressible rows a fragment of melt that the
+flow has left with one or two neighbours at the edge of their kernels has a near-null pressure
+mode: its rows' coefficients are grad W near the support's edge, and the pressure that holds
+it off a wall grows without bound as they vanish. Benchy's 4 x 4 mm window stalled on such a
+pair (two particles 0.38 spacings apart, 1.9 from the substrate, k = +-90 m^2/s^2 and
+growing): 20,000 GMRES iterations at a relative residual of 1.3e-5, after four halvings, the
+residual all in those two rows (2026-12-03). K bounds the mode by the melt's own stiffness
+and adds dx / (c^2 dt) to the Schur complement's diagonal, 1e-4-1e-3 of its value inside the
+melt, so the bulk's solution is unchanged: the draft bead's width 0.467-0.471 mm and height
+0.194-0.198 mm at K = 0.5, 1.5 and 6 GPa and incompressible, its run-to-run scatter, in the
+same 26-27 GMRES iterations a step. A quasi-static solve (a steady state) leaves it out.
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -112,7 +126,8 @@ class StokesResult:
     iterations: int
     #: |B^-1 momentum residual| / |B^-1 momentum right-hand side| (B: diagonal blocks)
     momentum_residual: float
-    #: largest predicted density error the step leaves, dt |D(u) - s| (-)
+    #: largest density error the step leaves, dt |D(u) - s| less the compression the melt's
+    #: bulk modulus allows, (k - k_n) / c^2 (-)
     density_error_max: float
     #: mean of it over the melt (-)
     density_error_mean: float
@@ -137,15 +152,16 @@ class CoupledStokes:
                        "surf_rhs",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
-                       "dots_out",
+                       "dots_out", "c2inv",
                        # the machine's, not the run's: a resume elsewhere takes its own
                        "on_cpu", "serial_rows")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
-                 spacing_m: float, rows, opts):
+                 spacing_m: float, rows, opts, bulk_modulus_pa: float | None = None):
         """viscosity: the melt's MeltViscosity; viscous: the ImplicitViscosity whose pair
         coefficients L uses; rows: a FluidIndex over the melt; opts: the run's DFSPHOptions
-        (its stokes_* fields)."""
+        (its stokes_* fields); bulk_modulus_pa: the melt's K (None or the option off:
+        incompressible)."""
         self.state = state
         self.grid = grid
         self.K = kernel
@@ -164,6 +180,12 @@ class CoupledStokes:
         self.traction = bool(opts.stokes_surface_traction)
         self.hourglass = float(opts.stokes_zero_energy_control)
         self.summation_source = opts.stokes_density_source == "summation"
+        # 1 / c^2 = rho0 / K (s^2/m^2): see "Compressibility"; a field, so that a
+        # quasi-static solve can leave it out without a second compilation
+        self.inv_c2 = (self.rho0 / float(bulk_modulus_pa)
+                       if bulk_modulus_pa and opts.stokes_compressible else 0.0)
+        self.c2inv = ti.field(ti.f64, shape=())
+        self.c2inv[None] = self.inv_c2
         self.flexible = opts.stokes_preconditioner == "block_triangular"
         self.inner_tol = float(opts.stokes_inner_tolerance)
         self.inner_max = int(opts.stokes_inner_max_iterations)
@@ -538,7 +560,8 @@ class CoupledStokes:
                 for d in ti.static(range(3)):
                     acc[d] += e[d]
             out[i] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
-                                zi[2] - dt * acc[2] + dt * acc[5], self.dx * acc[6]])
+                                zi[2] - dt * acc[2] + dt * acc[5],
+                                self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])])
 
     @ti.func
     def _precondition(self, n, v: ti.template(), S: ti.template()):
@@ -844,7 +867,8 @@ class CoupledStokes:
             Gi = ti.Vector([acc[0], acc[1], acc[2]])
             # (D B^-1 G)_ii; the dx-scaled continuity rows and dt G make it dx dt times that
             s_ii = (self.Binv[i] @ Gi).dot(Gi) + acc[3]
-            self.sigma[i] = 1.0 / (dt * self.dx * s_ii) if s_ii > 0.0 else 0.0
+            s_ii = dt * self.dx * s_ii + self.dx * self.c2inv[None] / dt
+            self.sigma[i] = 1.0 / s_ii if s_ii > 0.0 else 0.0
 
     @ti.kernel
     def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
@@ -977,8 +1001,11 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             v = ti.cast(self.state.v[i], ti.f64)
-            k = ti.select(from_state == 1, ti.cast(kappa[i], ti.f64), 0.0)
+            kn = ti.cast(kappa[i], ti.f64)
+            k = ti.select(from_state == 1, kn, 0.0)
             self.X[i] = ti.Vector([v[0], v[1], v[2], k])
+            # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
+            self.rhs[i][3] -= self.dx * self.c2inv[None] / self.dt[None] * kn
 
     @ti.kernel
     def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
@@ -1008,11 +1035,13 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ public
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
-              warm_pressure: bool = True) -> StokesResult:
+              warm_pressure: bool = True, compressible: bool = True) -> StokesResult:
         """Replace the melt's velocities by the step's solution and write k into ``kappa``
         (a per-particle field: k = p / rho0, m^2/s^2). The caller has sorted the particles,
-        built the neighbour lists, updated ``rows`` and set the densities."""
+        built the neighbour lists, updated ``rows`` and set the densities. compressible=False:
+        incompressible rows whatever the option (a quasi-static solve: a steady state)."""
         n = self.rows.n
+        self.c2inv[None] = self.inv_c2 if compressible else 0.0
         inner = 0
         S = self.serial(n)
         self._setup(n, float(dt), *map(float, gravity_m_s2), S)

@@ -357,7 +357,8 @@ class Simulation:
                           phase=self.timer.phase)
         self.solver = SOLVERS[run.scheme](self.state, self.grid, self.kernel, self.viscosity,
                                           self.material.density_kg_m3, run, hooks,
-                                          self.plan.speed_scale_m_s, self.plan.max_dt_s)
+                                          self.plan.speed_scale_m_s, self.plan.max_dt_s,
+                                          material=self.material)
         # DFSPH calibrates the particle volume so a rest lattice has rho = rho0 exactly
         self.mass = getattr(self.solver, "particle_mass", self.material.density_kg_m3 * dx**3)
         self.inlet = None

@@ -60,7 +60,7 @@ class EDACSolver:
     name = "edac"
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
         self.state = state
         self.hooks = hooks
         self.viscosity = viscosity
@@ -131,7 +131,7 @@ class DFSPHSolver:
     cached_per_neighbour = 1
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
         """speed_scale_m_s: the scene's speed scale (its fastest nozzle move; the creeping
         stabilisers scale with it); max_dt_s: the scene's largest step (None: the option's)."""
         self.state = state
@@ -150,8 +150,10 @@ class DFSPHSolver:
                                       run.dfsph.no_slip, run.dfsph.cg_chunk)
         self.stokes = None
         if run.dfsph.creeping_solve == "coupled":
+            bulk = material.bulk_modulus_pa if material is not None else None
             self.stokes = CoupledStokes(state, grid, kernel, viscosity, self.visc, rho0,
-                                        self.dfsph.V0, run.spacing_m, self.fluid, run.dfsph)
+                                        self.dfsph.V0, run.spacing_m, self.fluid, run.dfsph,
+                                        bulk_modulus_pa=bulk)
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
@@ -385,7 +387,7 @@ class DFSPHSolver:
         self.dfsph.prepare(n)
         self.fluid.update()
         self.dfsph.rows.update()
-        res = self.stokes.solve(dt, self.dfsph.kappa, self.gravity)
+        res = self.stokes.solve(dt, self.dfsph.kappa, self.gravity, compressible=False)
         return replace(res, wall_s=time.perf_counter() - t0)
 
     def _record_peak(self, compression: float) -> None:
@@ -442,7 +444,7 @@ class StaticSolver:
     name = "static"
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
         self.hooks = hooks
         self.max_dt = float(max_dt_s or 1.0)
 
