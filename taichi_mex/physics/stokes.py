@@ -101,10 +101,11 @@ it off a wall grows without bound as they vanish. Benchy's 4 x 4 mm window stall
 pair (two particles 0.38 spacings apart, 1.9 from the substrate, k = +-90 m^2/s^2 and
 growing): 20,000 GMRES iterations at a relative residual of 1.3e-5, after four halvings, the
 residual all in those two rows (2026-12-03). K bounds the mode by the melt's own stiffness
-and adds dx / (c^2 dt) to the Schur complement's diagonal, 1e-4-1e-3 of its value inside the
-melt, so the bulk's solution is unchanged: the draft bead's width 0.467-0.471 mm and height
-0.194-0.198 mm at K = 0.5, 1.5 and 6 GPa and incompressible, its run-to-run scatter, in the
-same 26-27 GMRES iterations a step. A quasi-static solve (a steady state) leaves it out.
+and adds dx / (c^2 dt) to the Schur complement's diagonal (6 % of its value inside the squeeze
+film at dt = 1e-4 s: a preconditioner's weight). The volume a step lets the melt lose is its
+pressure change over K, 1e-4 for a 0.15 MPa rise, and the bulk's solution is unchanged: the
+draft bead's width 0.467-0.471 mm and height 0.194-0.198 mm at K = 0.5, 1.5 and 6 GPa and
+incompressible, its run-to-run scatter, in the same 26-27 GMRES iterations a step. A quasi-static solve (a steady state) leaves it out.
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
