@@ -4,6 +4,7 @@ creeps, a run advances heat alone, or jumps without heat (RunOptions.skip_idle).
 import numpy as np
 import pytest
 
+from taichi_mex.core.state import FLUID
 from taichi_mex.spec import RunSpec
 from taichi_mex.toolpath.generate import write_pattern
 
@@ -42,6 +43,12 @@ def test_skipping_the_nozzles_absence_keeps_the_bead(tmp_path):
     times = np.array([f["time_s"] for f in read_frames(tmp_path / "skip" / "particles.h5")])
     every = (times[-1] - times[0]) / len(times)
     assert (np.diff(times) < 0.25 * every).sum() <= 1 and len(times) <= 11
+    # the melt waited: the frame at the jump's end has it at rest, not at the speed the
+    # nozzle dragged it with when it left (a fragment flew on at that speed, benchy's window)
+    frames = read_frames(tmp_path / "skip" / "particles.h5")
+    end = [f for f in frames if f["time_s"] == pytest.approx(span["to_s"], abs=1e-12)]
+    assert len(end) == 1
+    assert np.abs(end[0]["velocity"][end[0]["phase"] == FLUID]).max() == 0.0
 
 
 def test_heat_keeps_running_while_the_nozzle_is_away(tmp_path):

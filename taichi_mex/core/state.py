@@ -103,6 +103,16 @@ class ParticleState:
         return sl
 
 
+    def zero_velocity(self, phase: int) -> None:
+        """Set the velocity of every live particle of ``phase`` to zero."""
+        self._zero_velocity(self.n, phase)
+
+    @ti.kernel
+    def _zero_velocity(self, n: ti.i32, phase: ti.i32):
+        for i in range(n):
+            if self.phase[i] == phase:
+                self.v[i] = ti.Vector.zero(self.v.dtype, 3)
+
     @ti.kernel
     def _append(self, start: ti.i32, pos: ti.types.ndarray(), vel: ti.types.ndarray(),
                 mass: ti.types.ndarray(), density: float, phase: ti.i32, bead: ti.i32,

@@ -494,6 +494,11 @@ class Simulation:
         if t >= end:
             self.move_boundaries(t)
             self.grid.stale = True
+            # the melt waited: a creeping melt's velocity follows its walls within a step, and
+            # the nozzle's drag at the moment it left is long gone. Kept, it was inertia: a
+            # fragment the nozzle had dragged flew on at its speed when the run came back
+            # (benchy's window, t = 181.36 s)
+            self.state.zero_velocity(FLUID)
         return t
 
     def melt_particles(self) -> int:
