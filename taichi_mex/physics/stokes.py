@@ -105,7 +105,14 @@ and adds dx / (c^2 dt) to the Schur complement's diagonal (6 % of its value insi
 film at dt = 1e-4 s: a preconditioner's weight). The volume a step lets the melt lose is its
 pressure change over K, 1e-4 for a 0.15 MPa rise, and the bulk's solution is unchanged: the
 draft bead's width 0.467-0.471 mm and height 0.194-0.198 mm at K = 0.5, 1.5 and 6 GPa and
-incompressible, its run-to-run scatter, in the same 26-27 GMRES iterations a step. A quasi-static solve (a steady state) leaves it out.
+incompressible, its run-to-run scatter, in the same 26-27 GMRES iterations a step (the bead
+0.474 / 0.196 mm with the source below). The continuity source removes only the compression
+beyond the elastic k_n / c^2 that k_n already holds, min(1 + k_n / c^2 - rho / rho0, 0) / dt:
+counted in both, the pressure of a compression no flow could relieve grew by c^2 times it
+every step, and the paper's block (unscaled, draft) blew up at t = 0.76 s in a drip at the
+nozzle's edge, pressures of +-1-4 MPa alternating between neighbours; with the source
+corrected it ran past 1.0 s (with incompressible rows to 1.40 s, as far as either was run).
+A quasi-static solve (a steady state) leaves the compressibility out.
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
@@ -1006,7 +1013,15 @@ class CoupledStokes:
             k = ti.select(from_state == 1, kn, 0.0)
             self.X[i] = ti.Vector([v[0], v[1], v[2], k])
             # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
-            self.rhs[i][3] -= self.dx * self.c2inv[None] / self.dt[None] * kn
+            dt = self.dt[None]
+            self.rhs[i][3] -= self.dx * self.c2inv[None] / dt * kn
+            if ti.static(self.summation_source):
+                # the kernel sum's compression less the elastic part k_n / c^2 that k_n
+                # already holds: counted twice, the pressure of a compression no flow could
+                # relieve grew by c^2 times it every step
+                rho = ti.cast(self.state.rho[i], ti.f64) / self.rho0
+                elastic = ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
+                self.rhs[i][3] += self.dx * (elastic - ti.min((1.0 - rho) / dt, 0.0))
 
     @ti.kernel
     def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
