@@ -472,7 +472,8 @@ class DFSPHOptions:
         "(1,376 / 3,276 melt rows at the end) took 29 / 90 s in one thread against 87 / 142 s "
         "in parallel. The results agree to the solve's tolerance: to the bit on the squeeze "
         "film, with the same iteration counts on the bundled bead, while on benchy's window "
-        "the two compiled loops rounded differently (32.4 against 32.9 GMRES iterations a step over 691 steps)",
+        "the two compiled loops rounded differently (32.4 against 32.9 GMRES iterations a "
+        "step over 691 steps)",
         check=Either(NONE, Range(0, 10**9, integer=True)))
     density_compression_only: bool = opt(
         False, help="the density solve corrects compression only, everywhere, as in the paper "

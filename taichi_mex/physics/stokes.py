@@ -788,9 +788,11 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
-    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64, S: ti.template()):
+    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64,
+               kappa: ti.template(), S: ti.template()):
         """Walls near the melt and their Shepard sums; per-pair coefficients; preconditioner;
-        right-hand side (v* = v_n + dt g, plus the walls' constant terms)."""
+        right-hand side (v* = v_n + dt g, plus the walls' constant terms; the continuity rows
+        with k_n = kappa's)."""
         self.dt[None] = dt
         ti.loop_config(serialize=S)
         for i in range(self.state.n):
@@ -861,10 +863,15 @@ class CoupledStokes:
             else:
                 self.Binv[i] = weiler
                 mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
-            rho = ti.cast(self.state.rho[i], ti.f64)
-            s = ti.cast(0.0, ti.f64)
+            # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
+            kn = ti.cast(kappa[i], ti.f64)
+            s = -self.c2inv[None] / dt * kn
             if ti.static(self.summation_source):
-                s = ti.min((1.0 - rho / self.rho0) / dt, 0.0)
+                # the kernel sum's compression less the elastic part k_n / c^2 that k_n
+                # already holds: counted twice, the pressure of a compression no flow could
+                # relieve grew by c^2 times it every step
+                rho = ti.cast(self.state.rho[i], ti.f64) / self.rho0
+                s += ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
             self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
         # the Schur approximation needs every melt row's B^-1: a loop of its own
         ti.loop_config(serialize=S)
@@ -1009,19 +1016,8 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             v = ti.cast(self.state.v[i], ti.f64)
-            kn = ti.cast(kappa[i], ti.f64)
-            k = ti.select(from_state == 1, kn, 0.0)
+            k = ti.select(from_state == 1, ti.cast(kappa[i], ti.f64), 0.0)
             self.X[i] = ti.Vector([v[0], v[1], v[2], k])
-            # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
-            dt = self.dt[None]
-            self.rhs[i][3] -= self.dx * self.c2inv[None] / dt * kn
-            if ti.static(self.summation_source):
-                # the kernel sum's compression less the elastic part k_n / c^2 that k_n
-                # already holds: counted twice, the pressure of a compression no flow could
-                # relieve grew by c^2 times it every step
-                rho = ti.cast(self.state.rho[i], ti.f64) / self.rho0
-                elastic = ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
-                self.rhs[i][3] += self.dx * (elastic - ti.min((1.0 - rho) / dt, 0.0))
 
     @ti.kernel
     def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
@@ -1044,9 +1040,9 @@ class CoupledStokes:
         argument of every kernel here: each choice is compiled once). Every loop writes its
         own rows and every sum goes block by block in a fixed order, so the two choices
         differ only in how the compiler arranged each loop's arithmetic: identical on the
-        film (test), the same iteration counts on the bundled bead, not on benchy's window (32.4 against 32.9 GMRES
-        iterations a step over 691 steps, both converged); a GPU always runs them in
-        parallel."""
+        film (test), the same iteration counts on the bundled bead, not on benchy's window
+        (32.4 against 32.9 GMRES iterations a step over 691 steps, both converged); a GPU
+        always runs them in parallel."""
         return self.on_cpu and n < self.serial_rows
 
     # ------------------------------------------------------------------ public
@@ -1060,7 +1056,7 @@ class CoupledStokes:
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
         inner = 0
         S = self.serial(n)
-        self._setup(n, float(dt), *map(float, gravity_m_s2), S)
+        self._setup(n, float(dt), *map(float, gravity_m_s2), kappa, S)
         self._warm(n, kappa, 1 if warm_pressure else 0, S)
         iterations = 0
         m = self.m
