@@ -330,6 +330,31 @@ def test_ctrl_c_during_the_taichi_import_is_held_back_until_it_is_done():
     assert out.stdout.strip() == "interrupted after the block: True", out.stdout + out.stderr
 
 
+def test_ctrl_c_a_library_turns_into_its_own_error_is_an_interruption(tmp_path):
+    """Taichi's kernel decorator, reading annotations when a sweep's Ctrl-C fell, raised
+    TaichiSyntaxError and the run was recorded as failed (a suite run, 2026-12-04). A job that
+    received Ctrl-C is interrupted whatever error it ends with; an error without one is a
+    failure. A fresh process, as a job is; the library is a stand-in that swallows the
+    KeyboardInterrupt."""
+    code = (
+        "import os, signal, sys\n"
+        "from taichi_mex.app import jobs\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "def library(params, base_dir):\n"
+        "    try:\n"
+        "        if sys.argv[2] == 'ctrl-c':\n"
+        "            os.kill(os.getpid(), signal.SIGINT)\n"
+        "    except KeyboardInterrupt:\n"
+        "        pass\n"
+        "    raise SyntaxError('parameters must be type annotated')\n"
+        "jobs.resolve = library\n"
+        "print(jobs.run_print_job({}, sys.argv[1])['status'])\n")
+    for how, status in (("ctrl-c", "interrupted"), ("none", "failed")):
+        out = subprocess.run([sys.executable, "-c", code, str(tmp_path / how), how],
+                             capture_output=True, text=True, timeout=120)
+        assert out.stdout.strip().splitlines()[-1] == status, out.stdout + out.stderr
+
+
 @pytest.mark.parametrize("example", sorted(p.name for p in (REPO / "examples").glob("study_*.toml")))
 def test_example_studies_are_valid(example, tmp_path, capsys):
     assert main(["sweep", str(REPO / "examples" / example), "--dry-run", "--out", str(tmp_path)]) == 0

@@ -473,6 +473,30 @@ def sigint_deferred():
             os.kill(os.getpid(), signal.SIGINT)
 
 
+@contextlib.contextmanager
+def sigint_watched():
+    """Yield a list that records every Ctrl-C the block receives, each raising
+    KeyboardInterrupt as Python's own handler does. A library may catch that exception and
+    raise its own: Taichi's kernel decorator, reading a method's annotations when a sweep's
+    Ctrl-C fell, raised 'kernels parameters must be type annotated' and the run was recorded
+    as failed (a suite run, 2026-12-04). A job that received Ctrl-C is interrupted, whatever
+    error it ended with. Outside the main thread nothing is recorded."""
+    caught: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield caught
+        return
+
+    def handler(signum, frame):
+        caught.append(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield caught
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_print_job(params: dict, out_dir, *, base_dir=None, batch: str | None = None) -> dict:
     """Run one job in this process and return its record (also written as ``job.json``).
 
@@ -489,40 +513,44 @@ def run_print_job(params: dict, out_dir, *, base_dir=None, batch: str | None = N
     t0 = time.perf_counter()
     summary = meso = None
     nozzle_speed = None
-    try:
-        with sigint_deferred():
-            import taichi_mex.backend  # noqa: F401 - Taichi's import, which Ctrl-C would tear
-        res = resolve(params, base_dir)
-        job = build_job(res, out_dir)
-        record["job_notes"] = job.notes
-        from taichi_mex.sim.simulation import Simulation
+    with sigint_watched() as interrupts:
+        try:
+            with sigint_deferred():
+                import taichi_mex.backend  # noqa: F401 - Taichi's import, which Ctrl-C would tear
+            res = resolve(params, base_dir)
+            job = build_job(res, out_dir)
+            record["job_notes"] = job.notes
+            from taichi_mex.sim.simulation import Simulation
 
-        sim = Simulation.from_spec(job.spec, out_dir=out_dir)
-        if job.spec.scene == "print":
-            nozzle_speed = sim.plan.speed_scale_m_s
-        record["cpu_threads"] = job.spec.run.cpu_threads
-        record["estimate"] = {k: sim.estimate[k] for k in ("particles", "steps_estimate",
-                                                           "memory_bytes")}
-        summary = sim.run()
-        if summary.get("interrupted"):
-            record.update(status="interrupted", failure="interrupted",
-                          error="interrupted before the end (frames so far kept)")
-        else:
-            record["status"] = "done"
-            if res.analysis:
-                meso = _analyse(out_dir, record, sim.scene)
-    except UserInputError as exc:
-        record.update(status="failed", failure="refused", error=str(exc))
-    except SimulationDiverged as exc:
-        record.update(status="failed", failure="diverged", error=str(exc))
-        summary = read_json(out_dir / "summary.json")
-    except KeyboardInterrupt:
-        record.update(status="interrupted", failure="interrupted", error="interrupted")
-    except Exception as exc:  # noqa: BLE001 - a bug must cost this run only; keep its traceback
-        lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
-        record.update(status="failed", failure="error",  # the last line says what went wrong
-                      error=f"{type(exc).__name__}: {lines[-1] if lines else ''}",
-                      traceback=traceback.format_exc(limit=20))
+            sim = Simulation.from_spec(job.spec, out_dir=out_dir)
+            if job.spec.scene == "print":
+                nozzle_speed = sim.plan.speed_scale_m_s
+            record["cpu_threads"] = job.spec.run.cpu_threads
+            record["estimate"] = {k: sim.estimate[k] for k in ("particles", "steps_estimate",
+                                                               "memory_bytes")}
+            summary = sim.run()
+            if summary.get("interrupted"):
+                record.update(status="interrupted", failure="interrupted",
+                              error="interrupted before the end (frames so far kept)")
+            else:
+                record["status"] = "done"
+                if res.analysis:
+                    meso = _analyse(out_dir, record, sim.scene)
+        except UserInputError as exc:
+            record.update(status="failed", failure="refused", error=str(exc))
+        except SimulationDiverged as exc:
+            record.update(status="failed", failure="diverged", error=str(exc))
+            summary = read_json(out_dir / "summary.json")
+        except KeyboardInterrupt:
+            record.update(status="interrupted", failure="interrupted", error="interrupted")
+        except Exception as exc:  # noqa: BLE001 - a bug must cost this run only; keep its traceback
+            lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+            if interrupts:  # a library turned the KeyboardInterrupt into its own error
+                record.update(status="interrupted", failure="interrupted", error="interrupted")
+            else:
+                record.update(status="failed", failure="error",  # its last line says what
+                              error=f"{type(exc).__name__}: {lines[-1] if lines else ''}",
+                              traceback=traceback.format_exc(limit=20))
     record["finished"] = timestamp()
     metrics = key_metrics(summary, meso, nozzle_speed)
     metrics["wall_time_s"] = time.perf_counter() - t0
