@@ -389,3 +389,21 @@ def test_runs_keep_their_folders_when_the_study_grows(tmp_path):
     for run in grown.runs[:2]:
         assert json.loads((runs_dir / run.name / "job.json").read_text())["run"] == run.name
     assert sorted(p.name for p in runs_dir.iterdir()) == sorted(r.name for r in grown.runs[:2])
+
+
+def test_bead_ladder_error_is_against_the_creeping_flow_section():
+    """The bead ladder's error is a physical one: the section against the rounded rectangle
+    at the gap with the commanded area (0.45 x 0.2 mm line: W 0.450, H 0.2, 0.08142 mm^2),
+    not against the finest run, which may converge to a wrong shape."""
+    from taichi_mex.app.study import _bead_errors
+
+    exact = {"status": "done", "bead_width_mm": 0.45, "bead_height_mm": 0.2,
+             "bead_material_area_mm2": 0.081416}
+    wide = {**exact, "bead_width_mm": 0.495, "bead_height_mm": 0.19}
+    failed = {"status": "failed"}
+    rows = [exact, wide, failed]
+    _bead_errors("bead", rows)
+    assert exact["error"] < 1e-4
+    assert wide["error"] == pytest.approx(0.10, abs=1e-3)  # the width's +10 %, over H's -5 %
+    assert "creeping-flow" in wide["error_kind"]
+    assert "error" not in failed

@@ -372,15 +372,15 @@ CASES = {
         folder="strands", tag="step"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "
-        "bead's shape error relative to the finest run",
+        "section's largest deviation from the creeping-flow one (W, H, area)",
         [("study bead", ["study", "bead", "--out", "{out}"])],
         [("study bead --quick", ["study", "bead", "--quick", "--out", "{out}"])],
         [("run", lambda r: r.get("label", "")), ("status", lambda r: r.get("status", ""))]
         + COMMON + CG + [("M particle-steps/s", lambda r: f"{r['particle_steps_per_s'] / 1e6:.2f}"
                           if r.get("particle_steps_per_s") else ""),
                          ("viscosity x", num("viscosity_scale", "{:.3g}")),
-                         ("shape error vs finest", pct("error"))] + BEAD + DENSITY[:3]
-        + [("note", lambda r: (r.get("message") or "").split(". ")[0][:120])],
+                         ("section error vs creeping flow", pct("error"))] + BEAD + DENSITY[:2]
+        + COUPLED_SOLVE + [("note", lambda r: (r.get("message") or "").split(". ")[0][:120])],
         read=read_study),
     "stability": Case(
         "a 1.5 mm bead around the real-printer baseline (DFSPH, 1000 Pa s unscaled, 60 mm/s, "
