@@ -502,18 +502,21 @@ class DFSPHOptions:
         "delete flung melt and clamp its speed; the default of the other scenes)",
         check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
-        1e-5, help="coupled solve: relative residual of the momentum rows it stops at (-). "
-        "1e-5 against 1e-6: 26-30 % fewer iterations (draft bead 27 / 143 GMRES / inner a step "
-        "against 36 / 194, collapse at 10 Pa s 33 / 238 against 48 / 335), the bead's nine-section "
-        "width 0.467 against 0.469 mm and its height, area and top unchanged, Huppert's "
-        "coefficient 0.970 against 0.971. The density tolerance binds below it: at 1e-4 the "
-        "bead took as many iterations as at 1e-5",
+        1e-3, help="coupled solve: relative residual of the momentum rows it stops at (-; in "
+        "velocities, relative to the step's: each step solves afresh, so the error does not "
+        "build up). 1e-3 against 1e-5, the draft bead over three steps each (dt x 0.95, 1, "
+        "1.05): 9.2 / 47 GMRES / inner iterations a step against 26 / 139, 11 against 24 s; "
+        "nine-section width 0.464 against 0.471 mm, height 0.202 against 0.197 mm, material "
+        "area 0.0813 against 0.0806 mm^2 (the members spread 0.005 mm, 0.004 mm and 0.004 "
+        "mm^2). Benchy's window, first second: 8.3 against 32 GMRES a step, 12 against 54 s; "
+        "the collapse at 10 Pa s: Huppert's coefficient 0.967 against 0.971 in 39 against "
+        "173 s (2026-12-04)",
         check=Range(0.0, 0.1, lo_open=True))
     stokes_density_tolerance: float = opt(
-        1e-5, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-). "
-        "Not looser: the continuity source corrects compression only, so expansion a step "
-        "leaves stays; at 1e-4 the draft bead took half the iterations but its material area "
-        "fell 1.5 % (0.0789 against 0.0801 mm^2)",
+        1e-3, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-). "
+        "What a step leaves as expansion the next one removes (physics/stokes.py, "
+        "\"Tolerance\"), and compression the kernel sum shows, so the error does not add up "
+        "over steps; 1e-3 with the momentum's 1e-3 measured as said there",
         check=Range(0.0, 0.1, lo_open=True))
     stokes_restart: int = opt(40, help="coupled solve: GMRES restart length (Krylov vectors "
                               "kept; memory 32 bytes per particle each)",
