@@ -117,20 +117,20 @@ A quasi-static solve (a steady state) leaves the compressibility out.
 Tolerance: the solve stops at a momentum residual of 1e-3 relative to the step's velocities
 and a largest density error of 1e-3 (``stokes_momentum_tolerance``,
 ``stokes_density_tolerance``). Each step solves for its velocities afresh, so their error is
-not inherited; it moves a particle by 1e-3 of its step's travel. The density error would be:
-compression a step leaves shows in the next kernel sum and the source removes it, but the
-source counts no expansion (above). So each row's expansion, the positive part of its
-continuity residual dt (s - D(u)) + (k - k_n) / c^2, at most the tolerance, is kept per
-particle and added to the next step's source: the volume error stays within the tolerance
-instead of adding up over the steps. Measured 2026-12-04 on 2 cores (draft bead, three runs
-at dt x 0.95, 1, 1.05 each): at 1e-3 against 1e-5 9.2 / 47 GMRES / inner iterations a step
-against 26 / 139, 11 against 24 s, nine-section width 0.464 against 0.471 mm, height 0.202
-against 0.197 mm, material area 0.0813 against 0.0806 mm^2, the three runs of each
-spreading 0.005 mm, 0.004 mm and 0.004 mm^2; interior kernel sums 0.70 % off on average
-with the expansion carried and 0.82 % without (at 1e-2: 0.42 against 1.03 %). Standard
-bead: width 0.503 against 0.499 mm, height 0.185 against 0.190 mm, 47 against 106 s.
-Benchy's window, first second: 8.3 against 32 GMRES a step, 12 against 54 s. The collapse at
-10 Pa s: Huppert's coefficient 0.967 against 0.971, 39 against 173 s.
+not inherited; it moves a particle by 1e-3 of its step's travel. Compression a step leaves
+shows in the next kernel sum and the source removes it; expansion stays (the source counts
+none, above), at most 1e-3 of a particle's volume a step, and measured it does not add up.
+Measured 2026-12-04 on 2 cores (draft bead, three runs at dt x 0.95, 1, 1.05 each): at 1e-3
+against 1e-5 9.2 / 47 GMRES / inner iterations a step against 26 / 139, 11 against 24 s,
+nine-section width 0.464 against 0.471 mm, height 0.197 mm in both, material area 0.0810
+against 0.0806 mm^2 (the three runs of each spread 0.007 mm, 0.002 mm and 0.004 mm^2),
+interior kernel sums 0.82 and 0.81 % off on average. Benchy's window, first second: 8.3
+against 32 GMRES a step, 12 against 54 s; the collapse at 10 Pa s: Huppert's coefficient
+0.967 against 0.971, 39 against 173 s. Tried and not kept: carrying each row's leftover
+expansion into the next step's source. A fragment of a few particles cannot be compressed
+by any flow, so its elastic term took the carried volume, k ~ c^2 times it, and that pressure
+flung the fragment (its particles at 0.1-0.3 m/s, the sign alternating step by step: benchy's
+window stopped at t = 187.84 s at 1e-5 as at 1e-3; resumed without the carry, it ran on).
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
@@ -178,7 +178,7 @@ class CoupledStokes:
                        "surf_rhs",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
-                       "dots_out", "c2inv", "use_carry",
+                       "dots_out", "c2inv",
                        # the machine's, not the run's: a resume elsewhere takes its own
                        "on_cpu", "serial_rows")
 
@@ -212,11 +212,6 @@ class CoupledStokes:
                        if bulk_modulus_pa and opts.stokes_compressible else 0.0)
         self.c2inv = ti.field(ti.f64, shape=())
         self.c2inv[None] = self.inv_c2
-        # the expansion the last solve left within its tolerance, removed by the next one
-        # (see "Tolerance"); a particle's own, so it moves with the neighbour sort
-        self.carry = state.add("stokes_expansion_carry")
-        self.use_carry = ti.field(ti.f64, shape=())
-        state.on_append.append(lambda sl, _phase: self._zero_carry(sl.start, sl.stop))
         self.flexible = opts.stokes_preconditioner == "block_triangular"
         self.inner_tol = float(opts.stokes_inner_tolerance)
         self.inner_max = int(opts.stokes_inner_max_iterations)
@@ -895,7 +890,6 @@ class CoupledStokes:
                 # relieve grew by c^2 times it every step
                 rho = ti.cast(self.state.rho[i], ti.f64) / self.rho0
                 s += ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
-            s += self.use_carry[None] * ti.cast(self.carry[i], ti.f64) / dt
             self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
         # the Schur approximation needs every melt row's B^-1: a loop of its own
         ti.loop_config(serialize=S)
@@ -1054,20 +1048,6 @@ class CoupledStokes:
                                          ti.cast(x[2], float)])
             kappa[i] = ti.cast(x[3], float)
 
-    @ti.kernel
-    def _carry_out(self, n: ti.i32, S: ti.template()):
-        """The expansion the solve left: w holds the residual of X, dx (target - achieved)
-        in the continuity rows; positive, the step compressed less than it set out to."""
-        ti.loop_config(serialize=S)
-        for slot in range(n):
-            i = self.rows.index[slot]
-            self.carry[i] = ti.cast(ti.max(self.w[i][3] * self.dt[None] / self.dx, 0.0), float)
-
-    @ti.kernel
-    def _zero_carry(self, start: ti.i32, stop: ti.i32):
-        for i in range(start, stop):
-            self.carry[i] = 0.0
-
     def _set_coef(self, values: np.ndarray) -> None:
         buf = np.zeros(self.m + 1)
         buf[: len(values)] = values
@@ -1085,17 +1065,13 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ public
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
-              warm_pressure: bool = True, compressible: bool = True,
-              carry: bool = True) -> StokesResult:
+              warm_pressure: bool = True, compressible: bool = True) -> StokesResult:
         """Replace the melt's velocities by the step's solution and write k into ``kappa``
         (a per-particle field: k = p / rho0, m^2/s^2). The caller has sorted the particles,
         built the neighbour lists, updated ``rows`` and set the densities. compressible=False:
-        incompressible rows whatever the option (a quasi-static solve: a steady state).
-        carry=False: the expansion the last step left is neither removed nor recorded (a
-        measurement that is not a step)."""
+        incompressible rows whatever the option (a quasi-static solve: a steady state)."""
         n = self.rows.n
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
-        self.use_carry[None] = 1.0 if carry else 0.0
         inner = 0
         S = self.serial(n)
         self._setup(n, float(dt), *map(float, gravity_m_s2), kappa, S)
@@ -1153,8 +1129,6 @@ class CoupledStokes:
             self._update(n, k, self.flexible, S)
         mean = self._sum(n, True, S) / max(n, 1)
         self._finish(n, kappa, S)
-        if carry and done:  # an unconverged step is redone from the same state
-            self._carry_out(n, S)
         return StokesResult(bool(done), iterations, float(rel), float(rmax), mean, inner)
 
     @ti.kernel
