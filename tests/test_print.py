@@ -181,7 +181,7 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
                                                       / MEASURED_RATE_2CORE["dfsph-coupled"])
     # its iterations a step grow with the resolution (36 / 77 GMRES a step at 3 / 6 per gap)
     fine = sim(resolution="fine")
-    per_step = lambda s: s.estimate["wall_time_estimate_s"] / s.estimate["steps_estimate"]  # noqa: E731
+    per_step = lambda s: work(s) / s.estimate["steps_estimate"]  # noqa: E731
     assert per_step(fine) > 2.5 * 2 ** 1.3 * per_step(plain)  # 2.5x the particles, and more
 
 

@@ -26,32 +26,31 @@ log = logging.getLogger("taichi_mex")
 #: bytes per particle besides the registered fields: neighbour lists, sort buffers
 _TEMP_FACTOR = 2.0
 
-#: particle-steps per second measured on a 2-core CPU (README, Performance and trade
-#: tables; the DFSPH figure is the single bead at standard resolution, the EDAC one the
+#: particle-steps per second measured on a 2-core CPU (validation/trade and windows;
+#: the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-#: dfsph-coupled: the bundled bead at draft with --creeping-solve coupled --no-surface-traction
-#: and the momentum tolerance 1e-5, its loops in one thread below serial_rows (34.6 s for 602
-#: steps, compilation included; standard 98.6 s for 824; 2026-12-03), at draft's spacing:
-#: see COUPLED_RATE_*;
+#: dfsph-coupled: the bundled bead at draft with the coupled solve's default tolerances
+#: (1e-3), the bead ladder's draft rung (validation/trade: 18,092 particles, 601 steps in 17 s
+#: with 10 s of start-up, 2026-12-04), at draft's spacing: see COUPLED_RATE_*; it put benchy's
+#: 4 x 4 mm window at 13 min, measured 16.8 (validation/windows);
 #: dfsph-coupled-traction: the same solve with the free surface's traction, several times
 #: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
 #: two other runs, 2026-12-03)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.5e5,
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.5e6,
                        "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
-#: bead at 3 / 4 / 6 particles per 0.2 mm gap: 36 / 45 / 77 GMRES and 194 / 294 / 636 inner
-#: iterations a step, 2026-12-03): its rate holds at draft's spacing and falls as
-#: (draft spacing / spacing)^1.3 below it (standard measured at 1.44x draft's work per
-#: particle-step in one thread, 1.4x in parallel, fine at 2.9x in parallel, against 1.45x
-#: and 2.46x from the power); coarser spacings keep draft's rate (not measured, and not
-#: extrapolated)
+#: bead at 3 / 4 / 6 particles per 0.2 mm gap: 9 / 10 / 12 GMRES and 47 / 54 / 93 inner
+#: iterations a step, validation/trade 2026-12-04): its rate holds at draft's spacing and
+#: falls as (draft spacing / spacing)^1.3 below it (measured: standard 1.54x and fine 2.18x
+#: draft's wall time per particle-step, start-up left out, against 1.45x and 2.46x from the
+#: power); coarser spacings keep draft's rate (not measured, and not extrapolated)
 COUPLED_RATE_SPACING_M = RESOLUTION_PRESETS["draft"]["run"]["spacing_mm"] * 1e-3
 COUPLED_RATE_EXPONENT = 1.3
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
-#: measured wall time / estimate (README, Performance): the DFSPH rate is an older single-bead
-#: rate; the default bead runs 3.5x faster, the paper blocks (3x its viscosity iterations,
-#: and a compression correction in half of their steps) at 1.0-1.1x its time
+#: measured wall time / estimate: the DFSPH rate is an older single-bead rate (the default
+#: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve's ladder
+#: and benchy's window came out at 1.0-1.3x theirs (validation/trade)
 ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.5),
                    "dfsph-coupled-traction": (1.3, 1.5)}
 
@@ -302,7 +301,7 @@ class Simulation:
             lo, hi = ESTIMATE_SPREAD[key]
             spread = f"; measured runs took {lo:g}-{hi:g}x such estimates"
         return (f"; about {text} of wall time on {threads} CPU thread(s) at the rates measured "
-                f"for {key} (README, Performance){spread}")
+                f"for {key} (validation/trade){spread}")
 
     # ----------------------------------------------------------------- building
     def build(self) -> None:
