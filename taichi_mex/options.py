@@ -502,10 +502,10 @@ class DFSPHOptions:
         "delete flung melt and clamp its speed; the default of the other scenes)",
         check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
-        1e-3, help="coupled solve: relative residual of the momentum rows it stops at (-; in "
-        "velocities, relative to the step's: each step solves afresh, so the error is not "
-        "inherited). 1e-3 against 1e-5: a third of the iterations at the same section within "
-        "the runs' spread (physics/stokes.py, \"Tolerance\")",
+        1e-3, help="coupled solve: velocity error it stops at, relative to the step's "
+        "velocities (-): the momentum rows' residual and the motion the pressure error the "
+        "continuity rows leave would cause (each step solves afresh, so the error is not "
+        "inherited; physics/stokes.py, \"Tolerance\")",
         check=Range(0.0, 0.1, lo_open=True))
     stokes_density_tolerance: float = opt(
         1e-3, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-). "
@@ -652,8 +652,11 @@ class RunOptions:
         "kernel reaches (the support radius in spacings, rounded up: 2 for DFSPH's cubic "
         "spline, 3 for EDAC's Wendland), since deeper layers enter no sum",
         check=Either(NONE, Range(1, 50, integer=True)))
-    margin_mm: float = opt(1.0, help="extra plate and domain around the deposition (mm)",
-                           check=NonNegative())
+    margin_mm: float = opt(
+        0.6, help="how far beyond the deposition the run follows the nozzle's tip face (mm; "
+        "at least a bead's half-width, so the face leaves the melt before the run stops "
+        "following it); the plate and the domain reach one tip radius and one bore diameter "
+        "further (scenes/print.py)", check=NonNegative())
     progress: bool = opt(True, help="show a progress bar", check=Flag(), flag="--quiet",
                          const=False, flag_help="no progress bar")
     max_speed_m_s: float | None = opt(

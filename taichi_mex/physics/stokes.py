@@ -114,10 +114,21 @@ nozzle's edge, pressures of +-1-4 MPa alternating between neighbours; with the s
 corrected it ran past 1.0 s (with incompressible rows to 1.40 s, as far as either was run).
 A quasi-static solve (a steady state) leaves the compressibility out.
 
-Tolerance: the solve stops at a momentum residual of 1e-3 relative to the step's velocities
-and a largest density error of 1e-3 (``stokes_momentum_tolerance``,
-``stokes_density_tolerance``). Each step solves for its velocities afresh, so their error is
-not inherited; it moves a particle by 1e-3 of its step's travel. Compression a step leaves
+Tolerance: the solve stops when the velocity error its residual stands for is 1e-3 of the
+step's velocities and the largest density error is 1e-3 (``stokes_momentum_tolerance``,
+``stokes_density_tolerance``). The velocity error counts the pressure's: the continuity
+residual w_k leaves k wrong by about -sigma w_k (the preconditioner's Schur inverse), which
+moves the melt by dt G of it, so the measure is |B^-1 (w_u - dt G(-sigma w_k))|. With the bulk
+modulus in the rows, a density residual r leaves k free by up to c^2 r (1.2e3 m^2/s^2, 1.5 MPa,
+at 1e-3 for PLA): inside the melt the viscous coupling turns that into little motion, but a
+fragment of a few particles feels it with its inertia only. Measured on benchy's 4 x 4 mm
+window (2026-12-04): with the momentum rows' residual alone, a fragment of 4-6 particles the
+departing nozzle tore off moved at 0.08-0.56 m/s, its velocity alternating from step to step,
+and flung one particle out of the window; counting the pressure's part, no melt moved faster
+than 0.08 m/s over the same second, in 936 steps instead of 1,139 (the flung particle had
+shortened the CFL step) at 15 / 91 GMRES / inner iterations a step against 7 / 43. Each step
+solves for its velocities afresh, so their error is not inherited; it moves a particle by
+1e-3 of its step's travel. Compression a step leaves
 shows in the next kernel sum and the source removes it; expansion stays (the source counts
 none, above), at most 1e-3 of a particle's volume a step, and measured it does not add up.
 Measured 2026-12-04 on 2 cores (draft bead, three runs at dt x 0.95, 1, 1.05 each): at 1e-3
@@ -234,6 +245,7 @@ class CoupledStokes:
         self.X, self.rhs, self.w, self.z = vec4(), vec4(), vec4(), vec4()
         self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap))
         self.ghost = ti.Vector.field(3, ti.f64, shape=cap)  # Shepard melt velocity at a wall
+        self.werr = ti.Vector.field(3, ti.f64, shape=cap)  # momentum residual less dt G(dk)
         self.shepard = ti.field(ti.f64, shape=cap)  # sum_j W_bj over the melt
         self.wall_row = ti.field(ti.i32, shape=cap)  # walls within reach of the melt
         self.n_walls = ti.field(ti.i32, shape=())
@@ -905,11 +917,13 @@ class CoupledStokes:
 
     @ti.kernel
     def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
-        """w = rhs - A X (z = X: X is kept unpreconditioned); returns (|B^-1 w|^2 and
-        |B^-1 rhs|^2 over the momentum rows, largest |continuity residual| as a density error
-        dt |D(u) - s|). B^-1 (the diagonal blocks' inverse) turns both into velocities: the
-        right-hand side is dominated by the walls' terms, ~ nu dt / dx^2 times the wall speed,
-        so an unscaled relative residual of 1e-6 let velocities be wrong by their own size."""
+        """w = rhs - A X (z = X: X is kept unpreconditioned); returns (|B^-1 (w_u - dt G(dk))|^2
+        with dk = -sigma w_k, and |B^-1 rhs|^2, over the momentum rows; largest |continuity
+        residual| as a density error dt |D(u) - s|). B^-1 (the diagonal blocks' inverse) turns
+        both into velocities: the right-hand side is dominated by the walls' terms, ~ nu dt /
+        dx^2 times the wall speed, so an unscaled relative residual of 1e-6 let velocities be
+        wrong by their own size. dk is the pressure error the continuity residual leaves, as
+        the preconditioner reads it; dt G(dk) the velocity it would move."""
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
@@ -919,6 +933,20 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[i] = self.rhs[i] - self.w[i]
+        # the velocity error the residual stands for, through the preconditioner's own
+        # blocks: k's correction -sigma w_k moves the melt by dt G of it (see "Tolerance")
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
+        dt = self.dt[None]
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            g = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.grid.for_each_listed(i, self._pressure_task, g)
+            wi = self.w[i]
+            self.werr[i] = ti.Vector([wi[0], wi[1], wi[2]]) - dt * g
         return self._norms(n, S)
 
     @ti.func
@@ -933,7 +961,7 @@ class CoupledStokes:
                 i = self.rows.index[slot]
                 wi = self.w[i]
                 ri = self.rhs[i]
-                zw = self.Binv[i] @ ti.Vector([wi[0], wi[1], wi[2]])
+                zw = self.Binv[i] @ self.werr[i]
                 zr = self.Binv[i] @ ti.Vector([ri[0], ri[1], ri[2]])
                 su += zw.norm_sqr()
                 sb += zr.norm_sqr()

@@ -141,9 +141,13 @@ class PrintScene:
         # the nozzle's axis inside this box may deposit or touch the selection's melt; outside
         # it the run may skip (idle windows)
         axis_margin = run.margin_mm * 1e-3 + nozzle_r
-        # melt under the tip face moves with it until the axis leaves that box, so the plate
-        # and the domain reach one tip radius further: no melt is carried out of the domain
-        reach = axis_margin + nozzle_r
+        # melt under the tip face moves with it until the axis leaves that box, and melt the
+        # face's rim ploughs ahead of it (a window's melt stays molten unless heat is on) is at
+        # most a bead's width beyond the rim: the plate and the domain reach one tip radius and
+        # one bore diameter further. With the tip radius alone (and a 1 mm margin, the same
+        # plate), benchy's 4 x 4 mm window pushed melt off the plate's edge at the nozzle's
+        # speed (7 particles, 2026-12-04)
+        reach = axis_margin + nozzle_r + 1e-3 * traj.printer.nozzle_diameter_mm
         lo_xy = ext[0, :2] - reach
         hi_xy = ext[1, :2] + reach
         t0 = sel.t_start_s
@@ -189,7 +193,7 @@ class PrintScene:
         )
 
     #: the nozzle's path is sampled this often (s) to find where it leaves the domain; at
-    #: 200 mm/s it moves 0.1 mm per sample, a tenth of the domain's margin
+    #: 200 mm/s it moves 0.1 mm per sample, a sixth of the default margin
     idle_sample_s = 5e-4
 
     def _idle_windows(self, t0: float, t1: float, lo_m, hi_m) -> list[tuple[float, float]]:
