@@ -653,10 +653,9 @@ class RunOptions:
         "spline, 3 for EDAC's Wendland), since deeper layers enter no sum",
         check=Either(NONE, Range(1, 50, integer=True)))
     margin_mm: float = opt(
-        0.6, help="how far beyond the deposition the run follows the nozzle's tip face (mm; "
-        "at least a bead's half-width, so the face leaves the melt before the run stops "
-        "following it); the plate and the domain reach one tip radius and one bore diameter "
-        "further (scenes/print.py)", check=NonNegative())
+        1.0, help="how far beyond the deposition the run follows the nozzle's tip face (mm); "
+        "the plate and the domain reach one tip radius further, and where the nozzle leaves "
+        "that box (a window) one bore diameter more (scenes/print.py)", check=NonNegative())
     progress: bool = opt(True, help="show a progress bar", check=Flag(), flag="--quiet",
                          const=False, flag_help="no progress bar")
     max_speed_m_s: float | None = opt(

@@ -141,22 +141,24 @@ class PrintScene:
         # the nozzle's axis inside this box may deposit or touch the selection's melt; outside
         # it the run may skip (idle windows)
         axis_margin = run.margin_mm * 1e-3 + nozzle_r
-        # melt under the tip face moves with it until the axis leaves that box, and melt the
-        # face's rim ploughs ahead of it (a window's melt stays molten unless heat is on) is at
-        # most a bead's width beyond the rim: the plate and the domain reach one tip radius and
-        # one bore diameter further. With the tip radius alone (and a 1 mm margin, the same
-        # plate), benchy's 4 x 4 mm window pushed melt off the plate's edge at the nozzle's
-        # speed (7 particles, 2026-12-04)
-        reach = axis_margin + nozzle_r + 1e-3 * traj.printer.nozzle_diameter_mm
-        lo_xy = ext[0, :2] - reach
-        hi_xy = ext[1, :2] + reach
         t0 = sel.t_start_s
         t1 = sel.t_end_s + self.settle_s if self.until_s is None else min(self.until_s, sel.t_end_s + self.settle_s)
         t1 = max(t1, t0 + 1e-6)
+        idle = self._idle_windows(t0, t1, ext[0, :2] - axis_margin, ext[1, :2] + axis_margin)
+        # melt under the tip face moves with it until the axis leaves that box, so the plate
+        # and the domain reach one tip radius further; where the nozzle leaves the box (a
+        # window), melt its rim ploughs ahead (a window's melt stays molten unless heat is on)
+        # goes up to a bead's width further still: one bore diameter more, sideways and up.
+        # With the tip radius alone, benchy's 4 x 4 mm window pushed 7 particles off the
+        # plate's edge at the nozzle's speed (2026-12-04)
+        plough = 1e-3 * traj.printer.nozzle_diameter_mm if idle else 0.0
+        reach = axis_margin + nozzle_r + plough
+        lo_xy = ext[0, :2] - reach
+        hi_xy = ext[1, :2] + reach
         times = np.linspace(t0, min(t1, traj.print_time_s), 400)
         z_nozzle = traj.sample(times, clip=True).position_mm[:, 2] * 1e-3 + zoff
         column = (int(np.ceil(H / dx)) + 2) * dx
-        z_top = float(z_nozzle.max()) + column + 2 * H
+        z_top = float(z_nozzle.max()) + column + 2 * H + plough
         z_bottom = -(run.wall_layers() + 1) * dx - H
         lo = np.array([lo_xy[0] - H, lo_xy[1] - H, z_bottom])
         hi = np.array([hi_xy[0] + H, hi_xy[1] + H, z_top])
@@ -174,7 +176,6 @@ class PrintScene:
         # a travel move)
         direction = self._longest_bead_direction()
         speed = float(np.max(np.linalg.norm(traj.sample(times, clip=True).velocity_mm_s, axis=1))) * 1e-3
-        idle = self._idle_windows(t0, t1, ext[0, :2] - axis_margin, ext[1, :2] + axis_margin)
         section = self._section_point(zoff)
         self.plan_section = (section, direction / np.linalg.norm(direction))
         return ScenePlan(
@@ -193,7 +194,7 @@ class PrintScene:
         )
 
     #: the nozzle's path is sampled this often (s) to find where it leaves the domain; at
-    #: 200 mm/s it moves 0.1 mm per sample, a sixth of the default margin
+    #: 200 mm/s it moves 0.1 mm per sample, a tenth of the domain's margin
     idle_sample_s = 5e-4
 
     def _idle_windows(self, t0: float, t1: float, lo_m, hi_m) -> list[tuple[float, float]]:
