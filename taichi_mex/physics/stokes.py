@@ -662,6 +662,13 @@ class CoupledStokes:
         acc += self._pressure_pair(i, j, gV, self._corrected(i, gV))
 
     @ti.func
+    def _dt_pressure(self, i):
+        """dt G(k)_i of z's k."""
+        g = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+        self.grid.for_each_listed(i, self._pressure_task, g)
+        return self.dt[None] * g
+
+    @ti.func
     def _inner_task(self, i, slot, j, xij, acc: ti.template()):
         """sum_j c F ((p_i - p_j) . x) x, walls as p_j = -p_i (ghost) or 0 (prescribed melt)."""
         cF = self.cF[i, slot]
@@ -683,14 +690,11 @@ class CoupledStokes:
             v = self.basis[j, i]
             self.kpart[i] = -self.sigma[i] * v[3]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, self.kpart[i]])
-        dt = self.dt[None]
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            g = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            self.grid.for_each_listed(i, self._pressure_task, g)
             v = self.basis[j, i]
-            r = ti.Vector([v[0], v[1], v[2]]) - dt * g
+            r = ti.Vector([v[0], v[1], v[2]]) - self._dt_pressure(i)
             self.cg_x[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.cg_r[i] = r
             self.cg_z[i] = self._inner_binv(i) @ r
@@ -939,14 +943,11 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
-        dt = self.dt[None]
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            g = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            self.grid.for_each_listed(i, self._pressure_task, g)
             wi = self.w[i]
-            self.werr[i] = ti.Vector([wi[0], wi[1], wi[2]]) - dt * g
+            self.werr[i] = ti.Vector([wi[0], wi[1], wi[2]]) - self._dt_pressure(i)
         return self._norms(n, S)
 
     @ti.func
