@@ -29,14 +29,15 @@ _TEMP_FACTOR = 2.0
 #: particle-steps per second measured on a 2-core CPU (validation/trade and windows;
 #: the DFSPH figure is the single bead at standard resolution, the EDAC one the
 #: 100k-particle block); the wall-time estimate scales them with the thread count
-#: dfsph-coupled: the bundled bead at draft with the coupled solve's default tolerances
-#: (1e-3), the bead ladder's draft rung (validation/trade: 18,092 particles, 601 steps in 17 s
-#: with 10 s of start-up, 2026-12-04), at draft's spacing: see COUPLED_RATE_*; it put benchy's
-#: 4 x 4 mm window at 13 min, measured 16.8 (validation/windows);
+#: dfsph-coupled: the bundled bead at draft with the coupled solve's default tolerances and
+#: its stopping test counting the pressure error's motion (8c21d14): 18,092 particles, 602
+#: steps in 28.3 s with 10 s of start-up on an idle machine (2026-12-04), at draft's spacing:
+#: see COUPLED_RATE_*; it puts benchy's 4 x 4 mm window at 39 min, measured 38 beside other
+#: runs (validation/windows);
 #: dfsph-coupled-traction: the same solve with the free surface's traction, several times
 #: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
 #: two other runs, 2026-12-03)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 1.5e6,
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 6.0e5,
                        "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
 #: bead at 3 / 4 / 6 particles per 0.2 mm gap: 9 / 10 / 12 GMRES and 47 / 54 / 93 inner
@@ -50,7 +51,7 @@ COUPLED_RATE_EXPONENT = 1.3
 STARTUP_S = 10.0
 #: measured wall time / estimate: the DFSPH rate is an older single-bead rate (the default
 #: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve's ladder
-#: and benchy's window came out at 1.0-1.3x theirs (validation/trade)
+#: and benchy's window came out at 1.0-1.3x theirs (validation/trade, before 8c21d14)
 ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.5),
                    "dfsph-coupled-traction": (1.3, 1.5)}
 
