@@ -277,7 +277,6 @@ def test_a_compression_no_flow_relieves_settles_on_a_pressure():
     assert peaks[-1] < 1.1 * peaks[0]
 
 
-
 def test_the_tolerance_counts_the_velocity_a_pressure_error_causes():
     """With the bulk modulus in the continuity rows, a density residual r leaves k free by up
     to c^2 r; where the viscous coupling is weak the melt moves with it. The film at 1 Pa s,

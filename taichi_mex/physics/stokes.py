@@ -937,11 +937,8 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[i] = self.rhs[i] - self.w[i]
-        # the velocity error the residual stands for, through the preconditioner's own
-        # blocks: k's correction -sigma w_k moves the melt by dt G of it (see "Tolerance")
-        ti.loop_config(serialize=S)
-        for slot in range(n):
-            i = self.rows.index[slot]
+            # the velocity error the residual stands for, through the preconditioner's own
+            # blocks: k's correction -sigma w_k moves the melt by dt G of it (see "Tolerance")
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
         ti.loop_config(serialize=S)
         for slot in range(n):
