@@ -68,6 +68,15 @@ def read_bench(out: Path) -> list[dict]:
     return [dict(result["ours"])] + [dict(r) for r in result.get("pysph") or []]
 
 
+def read_summary_or_bench(out: Path) -> list[dict]:
+    """A run's summary.json, or our row of ``bench dam-break`` (its keys named as a summary's)."""
+    if (out / "bench.json").exists():
+        r = dict(json.loads((out / "bench.json").read_text())["ours"])
+        return [{**r, "particles_active": r["particles"], "wall_time_s": r["wall_s"],
+                 "cpu_threads": r["threads"] if r.get("arch") == "cpu" else None}]
+    return read_summary(out)
+
+
 # ----------------------------------------------------------------------------- columns
 def pct(key, digits=1):
     return lambda r: "" if r.get(key) is None else f"{100 * r[key]:.{digits}f} %"
@@ -138,6 +147,10 @@ class Case:
     #: its markers (<!-- table:begin:TAG -->), for a second table in one README
     folder: str | None = None
     tag: str = ""
+    #: rows -> rows once every run is read (figures that compare runs, e.g. CPU / GPU)
+    finish: object = None
+    #: wall seconds a run may take before it is stopped and reported as such (None: no limit)
+    timeout_s: float | None = None
 
 
 def strain_ratio(strain):
@@ -260,6 +273,50 @@ WINDOW = COMMON + [
            if r['estimate'].get('wall_time_estimate_s') else "-")) if r.get("estimate") and r.get("steps") else ""),
     ("melt particle-steps/s", num("melt_particle_steps_per_s"))] + LOSSES[:1] + COUPLED_SOLVE
 
+def on_both(label, args, params=None):
+    """The same command on the CPU (every core) and on the GPU: two runs, paired by label."""
+    return [(f"{label}, {arch}", [*args, "--arch", arch], {**(params or {}), "pair": label})
+            for arch in ("cpu", "gpu")]
+
+
+def cpu_over_gpu(rows: list[dict]) -> list[dict]:
+    """Each GPU row gets the CPU row's wall time and particle-steps/s over its own."""
+    cpu = {r["pair"]: r for r in rows if r.get("arch") == "cpu" and "failure" not in r}
+    for r in rows:
+        c = cpu.get(r.get("pair"))
+        if r.get("arch") in ("cuda", "vulkan") and c and r.get("wall_time_s"):
+            r["speedup_wall"] = c["wall_time_s"] / r["wall_time_s"]
+            if c.get("particle_steps_per_s"):
+                r["speedup_rate"] = r["particle_steps_per_s"] / c["particle_steps_per_s"]
+    return rows
+
+
+def _melt_check(r) -> str:
+    """What says the GPU run is the same physics: melt deposited against commanded, lost
+    particles, the bead's section where there is one."""
+    out = []
+    if r.get("commanded_volume_mm3"):
+        out.append(f"melt {r['deposited_volume_mm3'] / r['commanded_volume_mm3'] - 1:+.2%}")
+    if r.get("particles_lost") is not None:
+        out.append(f"lost {r['particles_lost']}")
+    if r.get("bead_width_mm"):
+        out.append(f"W / H {r['bead_width_mm']:.3f} / {r['bead_height_mm']:.3f} mm")
+    if r.get("stokes_iterations_per_step"):
+        out.append(f"{r['stokes_iterations_per_step']:.0f} / {r['stokes_inner_iterations_per_step']:.0f} its")
+    if r.get("max_speed_m_s") is not None:
+        out.append(f"max speed {r['max_speed_m_s']:.3g} m/s")
+    return ", ".join(out)
+
+
+GPU = [("run", lambda r: r["label"]),
+       ("ran on", lambda r: (r.get("arch") or "") + (f", {r['cpu_threads']} threads" if r.get("cpu_threads") else "")),
+       ("particles", num("particles_active")), ("steps", num("steps")),
+       ("wall s (compile included)", num("wall_time_s", "{:.3g}")),
+       ("M particle-steps/s", lambda r: f"{r['particle_steps_per_s'] / 1e6:.3f}" if r.get("particle_steps_per_s") else ""),
+       ("GPU speed-up: wall, particle-steps/s", lambda r: f"{r['speedup_wall']:.2f}x, {r['speedup_rate']:.2f}x"
+        if r.get("speedup_rate") else ""),
+       ("same physics?", _melt_check)]
+
 CASES = {
     "hydrostatic": Case(
         "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
@@ -325,6 +382,22 @@ CASES = {
             "85:95,85:95", "--until", BENCHY_10MM_START_S + 1, "--creeping-solve", "coupled",
             "--no-surface-traction"))],
         WINDOW, folder="windows", tag="10mm"),
+    "gpu": Case(
+        "the same commands on the CPU (every core) and the GPU, one after the other on one machine: "
+        "the dam break's EDAC (143k particles, 100 steps), the bundled bead at draft, benchy's 4 x 4 mm "
+        "window's first second and the unscaled paper block to print time 0.8 s (coupled solve)",
+        on_both("dam break EDAC", ["bench", "dam-break", "--no-pysph", "--json", "{out}/bench.json"])
+        + on_both("bead, draft", strand(0.2, 0.45, "--resolution", "draft"))
+        + on_both("benchy 4 x 4 mm, first second", window(
+            "88:92,88:92", "--until", BENCHY_4MM_START_S + 1, "--creeping-solve", "coupled",
+            "--no-surface-traction"))
+        + on_both("paper block, draft, unscaled, to 0.8 s", [
+            *BLOCK, "--resolution", "draft", "--viscosity-scale", "off", "--until", 0.8, *QUIET,
+            "--out", "{out}"]),
+        on_both("dam break EDAC, dx 0.04, 10 steps", ["bench", "dam-break", "--no-pysph", "--dx", 0.04,
+                                                       "--steps", 10, "--json", "{out}/bench.json"])
+        + on_both("bead, 0.1 mm", strand(0.2, 0.45, "--resolution", 0.1)),
+        GPU, read=read_summary_or_bench, finish=cpu_over_gpu, timeout_s=300),
     "thermal_beam": Case(
         "the seed paper's aluminium beam, 50 s: centre-line temperature against the analytic "
         "series (a) and a finite-volume solution with losses (b)",
@@ -573,7 +646,12 @@ def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[d
         commands.append(shown([str(a).replace(str(out_root), "OUT") for a in cmd]))
         print(f"[{name} {k + 1}/{len(case.quick if quick else case.runs)}] {commands[-1]}", flush=True)
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                  timeout=case.timeout_s)
+        except subprocess.TimeoutExpired as exc:
+            log = exc.stdout.decode(errors="replace") if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+            proc = subprocess.CompletedProcess(cmd, f"stopped after {case.timeout_s:.0f} s", log)
         (out / "log.txt").write_text(proc.stdout)
         try:
             got = case.read(out)
@@ -629,7 +707,14 @@ def markdown(case: Case, rows: list[dict]) -> str:
 
 
 def machine() -> str:
-    return f"{platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+    gpu = ""
+    try:  # the GPU a case ran on, where there is one
+        names = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                               capture_output=True, text=True, timeout=30).stdout.strip()
+        gpu = f", GPU {names.splitlines()[0]}" if names else ""
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return f"{platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores{gpu}"
 
 
 def rewrite(name: str, block: str, tag: str = "") -> Path:
@@ -671,6 +756,8 @@ def main(argv=None) -> int:
         out_root = (args.out or Path(tmp)).resolve()
         t0 = time.perf_counter()
         rows, commands = run_case(args.case, case, out_root, args.quick)
+        if case.finish:
+            rows = case.finish(rows)
         wall = time.perf_counter() - t0
     stamp = (f"Regenerated {datetime.date.today().isoformat()} ({code_version()}) on {machine()}, "
              f"Python {platform.python_version()}, {wall / 60:.1f} min in all"

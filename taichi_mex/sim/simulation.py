@@ -842,6 +842,7 @@ class Simulation:
                                           if self.time_s > self.plan.t_start_s else None),
             "last_dt_limits_s": {k: float(v) for k, v in dt_limits.items()},
             "arch": getattr(self, "arch_used", None),
+            "cpu_threads": backend.current().get("threads") if getattr(self, "arch_used", None) == "cpu" else None,
             "precision": self.run_opts.precision,
             "neighbour_rebuilds": int(self.grid.rebuilds),
         }
