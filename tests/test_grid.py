@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from taichi_mex import backend
-from taichi_mex.core.state import FLUID, INLET, PLATE, ParticleState
+from taichi_mex.core.state import FLUID, INLET, PLATE, SOLID, ParticleState
 
 
 def _brute(x, radius):
@@ -13,7 +13,7 @@ def _brute(x, radius):
     return [np.sort(np.nonzero(row < radius)[0]) for row in d]
 
 
-def _build(points, phases, H, lo, hi, skin=0.0, origin=(0.0, 0.0, 0.0)):
+def _build(points, phases, H, lo, hi, skin=0.0, origin=(0.0, 0.0, 0.0), solid_lists=True):
     from taichi_mex.core.grid import NeighbourGrid
 
     st = ParticleState(len(points) + 8, origin_m=origin)
@@ -21,7 +21,7 @@ def _build(points, phases, H, lo, hi, skin=0.0, origin=(0.0, 0.0, 0.0)):
     for k, ph in enumerate(phases):
         st.append(points[k:k + 1], ph, 1.0)
     ids.from_numpy(np.concatenate([np.arange(len(points)), np.zeros(8)]).astype(np.float32))
-    grid = NeighbourGrid(st, lo, hi, H, max_neighbours=200, skin_m=skin)
+    grid = NeighbourGrid(st, lo, hi, H, max_neighbours=200, skin_m=skin, solid_lists=solid_lists)
     grid.rebuild()
     return st, grid, ids
 
@@ -73,3 +73,26 @@ def test_idle_walls_get_no_list():
     near = (ph == PLATE) & (np.linalg.norm(x - melt[0], axis=1) < H)
     far = (ph == PLATE) & ~near
     assert np.all(counts[near] > 0) and np.all(counts[far] == 0)
+
+
+@pytest.mark.parametrize("solid_lists", [True, False])
+def test_a_substrate_without_heat_is_listed_as_a_wall(solid_lists):
+    """Solidified melt conducts heat (its own list everywhere); without heat it is a wall:
+    listed only where melt sees it, with the same list, and the melt's lists unchanged."""
+    backend.init("cpu", "f64")
+    H = 0.1
+    lo, hi = np.zeros(3), np.array([1.0, 0.2, 0.2])
+    substrate = np.stack([np.linspace(0.025, 0.975, 20), np.full(20, 0.05), np.full(20, 0.05)], axis=1)
+    melt = np.array([[0.05, 0.08, 0.05], [0.09, 0.08, 0.06]])
+    pts = np.concatenate([substrate, melt])
+    st, grid, ids = _build(pts, [SOLID] * 20 + [FLUID] * 2, H, lo, hi, solid_lists=solid_lists)
+    x = st.numpy("position")
+    ph = st.phase.to_numpy()[: st.n]
+    got = grid.neighbour_lists_numpy()
+    expect = _brute(x, H)
+    near = np.array([(ph[i] == SOLID) and (np.linalg.norm(x[ph == FLUID] - x[i], axis=1) < H).any()
+                     for i in range(st.n)])
+    for i in range(st.n):
+        listed = ph[i] == FLUID or near[i] or solid_lists
+        np.testing.assert_array_equal(got[i], expect[i] if listed else [])
+    assert (~near & (ph == SOLID)).sum() > 10  # most of the substrate is out of reach

@@ -30,14 +30,17 @@ import math
 import numpy as np
 
 from taichi_mex.backend import current, ti
-from taichi_mex.core.state import INLET, NOZZLE, SOLID
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID
 
 
 @ti.data_oriented
 class NeighbourGrid:
     def __init__(self, state, lo_m, hi_m, support_radius_m: float, max_neighbours: int = 96,
-                 cells_per_support: int = 2, skin_m: float = 0.0):
+                 cells_per_support: int = 2, skin_m: float = 0.0, solid_lists: bool = True):
+        """solid_lists: solidified melt gets a list of its own (heat conducts through it);
+        False: only where melt sees it, as a wall (a print window's substrate without heat)."""
         self.state = state
+        self.solid_lists = bool(solid_lists)
         self.H = float(support_radius_m)
         self.skin = float(skin_m)
         self.R = self.H + self.skin  # list radius
@@ -207,8 +210,19 @@ class NeighbourGrid:
         acc += 1
 
     @ti.func
+    def _own_list(self, i):
+        """Particles that get a list whatever their neighbours: melt, and solidified melt
+        where heat conducts through it; every other particle is a wall, listed where melt
+        sees it."""
+        ph = self.state.phase[i]
+        own = ph == FLUID
+        if ti.static(self.solid_lists):
+            own = ph <= SOLID
+        return own
+
+    @ti.func
     def _flag_walls(self, j):
-        if self.state.phase[j] > SOLID:
+        if not self._own_list(j):
             self.wall_needed[j] = 1  # benign race: every writer stores 1
 
     @ti.func
@@ -233,9 +247,9 @@ class NeighbourGrid:
         """n_nbr of the melt (walls=False) or of the walls the melt flagged (True); fill:
         also write the lists (and count the truncated ones)."""
         for i in range(alive):
-            wanted = self.state.phase[i] <= SOLID
+            wanted = self._own_list(i)
             if ti.static(walls):
-                wanted = self.state.phase[i] > SOLID and self.wall_needed[i] == 1
+                wanted = not wanted and self.wall_needed[i] == 1
             if wanted:
                 acc = 0
                 self.scan_cells(i, task, acc)

@@ -340,7 +340,10 @@ class Simulation:
                                        scale=self.viscosity_scale)
         skin = (run.edac.list_skin if run.scheme == "edac" else 0.0) * self.kernel.H
         self.grid = NeighbourGrid(self.state, self.plan.domain_lo_m, self.plan.domain_hi_m,
-                                  self.kernel.H, self.estimate["max_neighbours"], skin_m=skin)
+                                  self.kernel.H, self.estimate["max_neighbours"], skin_m=skin,
+                                  # without heat a window's substrate is a wall: most of it
+                                  # is out of the melt's reach and needs no list
+                                  solid_lists=self.thermal is not None)
         self.state.on_append.append(lambda _sl, _ph: setattr(self.grid, "stale", True))
         self.viscosity.attach(self.grid, self.kernel)
         from taichi_mex.physics.surface import SurfaceDetector
