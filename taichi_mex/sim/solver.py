@@ -172,9 +172,11 @@ class DFSPHSolver:
         self.saved_k = ti.Vector.field(2, float, shape=cap)
         self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
         self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0,
-                       "stokes_iterations": 0, "stokes_inner_iterations": 0}
+                       "stokes_iterations": 0, "stokes_inner_iterations": 0,
+                       "stokes_free_steps": 0}
         self.worst = {"density_error": 0.0, "viscosity_residual": 0.0,
-                      "stokes_momentum_residual": 0.0, "stokes_density_error": 0.0}
+                      "stokes_momentum_residual": 0.0, "stokes_density_error": 0.0,
+                      "stokes_free_rows": 0}
         # the densest melt at the start of every step: the state a step leaves, at any time,
         # not only at the end (a slice leaving the bore was compressed for one step)
         self.peak_compression = {"max": 0.0, "sum": 0.0, "steps": 0}
@@ -348,6 +350,8 @@ class DFSPHSolver:
         w = self.worst
         w["stokes_momentum_residual"] = max(w["stokes_momentum_residual"], res.momentum_residual)
         w["stokes_density_error"] = max(w["stokes_density_error"], res.density_error_max)
+        w["stokes_free_rows"] = max(w["stokes_free_rows"], res.free_rows)
+        self.totals["stokes_free_steps"] += res.free_rows > 0
         with h.phase("advance"):
             out = self._advance(n, dt)
         self.vmax = float(out[0])
@@ -429,6 +433,9 @@ class DFSPHSolver:
             "stokes_inner_iterations_per_step": self.totals["stokes_inner_iterations"] / steps,
             "stokes_momentum_residual_worst": self.worst["stokes_momentum_residual"],
             "stokes_density_error_worst": self.worst["stokes_density_error"],
+            # melt torn off into fragments that touch nothing: steps with any, most at once
+            "stokes_free_fragment_steps": self.totals["stokes_free_steps"],
+            "stokes_free_fragment_particles_max": self.worst["stokes_free_rows"],
             "speed_clamped_particle_steps": self.clamped,
             # largest compression of any melt particle over all steps, and its mean over steps
             "compression_error_max_run": self.peak_compression["max"],
