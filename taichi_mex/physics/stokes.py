@@ -204,7 +204,7 @@ class CoupledStokes:
     #: Krylov basis and scratch, rebuilt by every solve: not part of a checkpoint
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
-                       "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b",
+                       "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b", "changed",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
                        "dots_out", "c2inv",

@@ -156,6 +156,9 @@ def restore(sim, data: dict) -> None:
         field.from_numpy(arr)
     for key, value in data["values"].items():
         obj, name = _resolve(sim, key)
+        now = getattr(obj, name, None)
+        if isinstance(value, dict) and isinstance(now, dict):
+            value = {**now, **value}  # a counter added since the checkpoint starts from its default
         setattr(obj, name, value)
     run = data["run"]
     sim.time_s = run["time_s"]
