@@ -1290,11 +1290,10 @@ class CoupledStokes:
         for _ in range(1):
             for slot in range(n):
                 i = self.rows.index[slot]
-                if self.anchored[i] == 0:
-                    r = self.comp[i]
-                    self.cl_n[r] = 0.0
-                    self.cl_c[r] = ti.Vector.zero(ti.f64, 3)
-                    self.cl_Jinv[r] = ti.Matrix.zero(ti.f64, 3, 3)
+                if self.anchored[i] == 0 and self.comp[i] == i:  # a fragment's label is its row
+                    self.cl_n[i] = 0.0
+                    self.cl_c[i] = ti.Vector.zero(ti.f64, 3)
+                    self.cl_Jinv[i] = ti.Matrix.zero(ti.f64, 3, 3)
             for slot in range(n):
                 i = self.rows.index[slot]
                 if self.anchored[i] == 0:
@@ -1329,10 +1328,9 @@ class CoupledStokes:
         for _ in range(1):
             for slot in range(n):
                 i = self.rows.index[slot]
-                if self.anchored[i] == 0:
-                    r = self.comp[i]
-                    self.cl_a[r] = ti.Vector.zero(ti.f64, 3)
-                    self.cl_b[r] = ti.Vector.zero(ti.f64, 3)
+                if self.anchored[i] == 0 and self.comp[i] == i:
+                    self.cl_a[i] = ti.Vector.zero(ti.f64, 3)
+                    self.cl_b[i] = ti.Vector.zero(ti.f64, 3)
             for slot in range(n):
                 i = self.rows.index[slot]
                 if self.anchored[i] == 0:
