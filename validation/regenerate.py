@@ -71,7 +71,7 @@ def read_bench(out: Path) -> list[dict]:
 def read_summary_or_bench(out: Path) -> list[dict]:
     """A run's summary.json, or our row of ``bench dam-break`` (its keys named as a summary's)."""
     if (out / "bench.json").exists():
-        r = dict(json.loads((out / "bench.json").read_text())["ours"])
+        r = read_bench(out)[0]
         return [{**r, "particles_active": r["particles"], "wall_time_s": r["wall_s"],
                  "cpu_threads": r["threads"] if r.get("arch") == "cpu" else None}]
     return read_summary(out)

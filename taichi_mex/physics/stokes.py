@@ -1219,34 +1219,19 @@ class CoupledStokes:
             acc += 1
 
     @ti.kernel
-    def _free_begin(self, n: ti.i32, S: ti.template()) -> ti.i32:
-        """A melt row with a wall (or the bore's prescribed column) within H is anchored;
-        returns how many are."""
+    def _free_begin(self, n: ti.i32, S: ti.template()):
+        """No melt row anchored yet, each its own label."""
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.anchored[i] = 0
             self.comp[i] = i
-        count = 0
-        ti.loop_config(serialize=S)
-        for slot in range(n):
-            i = self.rows.index[slot]
-            acc = 0
-            self.grid.for_each_neighbour(i, self._wall_task, acc)
-            if acc > 0:
-                self.anchored[i] = 1
-                count += 1
-        return count
-
-    @ti.func
-    def _wall_task(self, i, j, xij, acc: ti.template()):
-        if self.state.phase[j] != FLUID:
-            acc += 1
 
     @ti.kernel
     def _free_spread(self, n: ti.i32, S: ti.template()) -> ti.i32:
-        """Anchoring spreads through melt neighbours; returns how many rows it reached (the
-        set it converges to does not depend on the order)."""
+        """A melt row with a wall (or the bore's prescribed column) or an anchored melt row
+        within H is anchored; returns how many rows this pass anchored (the set the passes
+        converge to does not depend on the order)."""
         self.changed[None] = 0
         ti.loop_config(serialize=S)
         for slot in range(n):
@@ -1352,16 +1337,15 @@ class CoupledStokes:
 
     def _find_free(self, n: int, S: bool) -> int:
         """Label the melt's free fragments; returns how many melt rows they hold."""
-        anchored = int(self._free_begin(n, S))
-        if anchored == n:
-            return 0
-        while True:
+        self._free_begin(n, S)
+        anchored = 0
+        while anchored < n:
             grown = int(self._free_spread(n, S))
-            anchored += grown
-            if anchored == n:
-                return 0
             if grown == 0:
                 break
+            anchored += grown
+        if anchored == n:
+            return 0
         while int(self._free_label(n, S)) > 0:
             pass
         self._free_geometry(n)
