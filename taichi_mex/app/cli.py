@@ -149,8 +149,10 @@ def run_print(argv: list[str]) -> int:
             raise UserInputError(f"--dry-run plans prints; this description is a '{spec.scene}' scene.")
         return run_simulation(spec, args.out)
     o = spec.options
+    # planned as the run plans it: through the last selected layer (benchy's layer 3: 2.4 s
+    # against 38 s for the whole file, which the run never reads)
     plan = make_plan(bundled.resolve_gcode(o.gcode), o.printer, layers=parse_layers(o.layers),
-                     until_s=o.until_s, region_mm=parse_region(o.region))
+                     until_s=o.until_s, region_mm=parse_region(o.region), plan_whole_file=False)
     print(plan.describe())
     print(material_line(spec))
     print(f"plan written to {plan.write(args.out)}")

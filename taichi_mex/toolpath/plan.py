@@ -26,6 +26,8 @@ class PrintPlan:
             "extruding_time_s": traj.extruding_time_s,
             "extruded_volume_mm3": traj.extruded_volume_mm3,
             "n_layers": traj.n_layers,
+            "planned_through_layer": traj.planned_through_layer,
+            "layers_in_file": traj.layers_in_file or traj.n_layers,
             "layer_z_mm": traj.layer_z_mm[1:].tolist(),
             "n_segments": traj.n_segments,
             "n_extruding_intervals": len(traj.extruding_intervals()),
@@ -41,15 +43,20 @@ class PrintPlan:
         d = self.as_dict()
         t0, t1 = d["selected_time_window_s"]
         share = d["selected_extruded_volume_mm3"] / d["extruded_volume_mm3"]
+        cut = d["planned_through_layer"]
+        planned = (f"planned through layer {cut} of {d['layers_in_file']} (nothing after the "
+                   "selection is needed): " if cut else "")
         lines = [
             f"G-code   {d['gcode']}  (printer {d['printer']}, nozzle {d['nozzle_diameter_mm']} mm, "
             f"filament {d['filament_diameter_mm']} mm)",
-            f"print    {d['print_time_s']:.3f} s in {d['n_segments']} planned segments, "
-            f"{d['n_layers']} layer(s) ({d['layer_detection']}), extruding {d['extruding_time_s']:.3f} s, "
+            f"print    {planned}{d['print_time_s']:.3f} s in {d['n_segments']} planned segments, "
+            + ("" if cut else f"{d['n_layers']} layer(s) ")
+            + f"({d['layer_detection']}), extruding {d['extruding_time_s']:.3f} s, "
             f"{d['extruded_volume_mm3']:.4f} mm^3 of bead",
             f"selected layers {d['selected_layers']}, time {t0:.4f}-{t1:.4f} s"
             + (f", region {d['selected_region_mm']} mm" if d["selected_region_mm"] else "")
-            + f": {d['selected_extruded_volume_mm3']:.4g} mm^3 ({_percent(share)} of the bead volume)",
+            + f": {d['selected_extruded_volume_mm3']:.4g} mm^3 ({_percent(share)} of the "
+            + ("planned " if cut else "") + "bead volume)",
         ]
         if d["ignored_commands"]:
             shown = ", ".join(f"{k} x{v}" for k, v in list(d["ignored_commands"].items())[:6])

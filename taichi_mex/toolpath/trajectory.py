@@ -138,6 +138,10 @@ class Trajectory:
     extruding: np.ndarray  #: depositing a bead: E forward *and* the nozzle moving in XY
     layer_z_mm: np.ndarray  #: nozzle Z of each layer (index 0 unused)
     gcode: NormalisedGCode = field(repr=False, default=None)
+    #: planning stopped after this extruding layer (the rest of the file is not needed); None:
+    #: the whole file was planned
+    planned_through_layer: int | None = None
+    layers_in_file: int | None = None  #: extruding layers in the file, where it was cut short
 
     # ---- derived once
     def __post_init__(self):
@@ -497,10 +501,12 @@ def load_trajectory(gcode_path, printer: str | PrinterPreset = "prusa_mini",
     init = tuple(float(preset.settings.get(k, 0.0)) for k in ("X", "Y", "Z", "E"))
     norm = normalise_gcode(_read_text(path), init)
     text = norm.text
+    cut = None
     if last_layer is not None and norm.has_layer_cues:
         raw_extruding = _raw_layers_with_extrusion(norm)
         if last_layer < len(raw_extruding):
             text = _truncate_after_layer(norm, raw_extruding[last_layer - 1])
+            cut = (last_layer, len(raw_extruding))
 
     settings = dict(preset.settings)
     settings.update(absolute_position=True, absolute_extrusion=False, printer=preset.name,
@@ -520,7 +526,10 @@ def load_trajectory(gcode_path, printer: str | PrinterPreset = "prusa_mini",
             raise GCodeError(f"pyGCodeDecode could not plan {path.name} with printer "
                              f"'{preset.name}': {exc}. Check the printer preset's limits and "
                              "the G-code's moves.") from None
-    return _from_blocklist(sim.blocklist, str(path), preset, norm)
+    traj = _from_blocklist(sim.blocklist, str(path), preset, norm)
+    if cut is not None:
+        traj.planned_through_layer, traj.layers_in_file = cut
+    return traj
 
 
 def _raw_layers_with_extrusion(norm: NormalisedGCode) -> list[int]:
