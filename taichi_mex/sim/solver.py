@@ -173,10 +173,11 @@ class DFSPHSolver:
         self.saved_vdiff = ti.Vector.field(3, float, shape=cap)
         self.totals = {"density_iterations": 0, "divergence_iterations": 0, "viscosity_iterations": 0,
                        "stokes_iterations": 0, "stokes_inner_iterations": 0,
-                       "stokes_free_steps": 0}
+                       "stokes_free_steps": 0, "melt_speed_1_2x": 0, "melt_speed_2_4x": 0,
+                       "melt_speed_over_4x": 0}
         self.worst = {"density_error": 0.0, "viscosity_residual": 0.0,
                       "stokes_momentum_residual": 0.0, "stokes_density_error": 0.0,
-                      "stokes_free_rows": 0}
+                      "stokes_free_rows": 0, "melt_speed": 0.0}
         # the densest melt at the start of every step: the state a step leaves, at any time,
         # not only at the end (a slice leaving the bore was compressed for one step)
         self.peak_compression = {"max": 0.0, "sum": 0.0, "steps": 0}
@@ -205,6 +206,18 @@ class DFSPHSolver:
             limits["force"] = 0.25 * (0.5 * self.dfsph.K.H / g) ** 0.5
         limits.update(self.hooks.extra_dt_limits())
         return min(limits.values()), limits
+
+    def _record_speed(self) -> None:
+        """The step's fastest melt against the fastest wall (the nozzle in a print), binned:
+        creeping melt moves no faster than what drives it, so steps well above it count melt
+        that the solve flung (and that shortens the CFL step)."""
+        self.worst["melt_speed"] = max(self.worst["melt_speed"], self.vmax)
+        wall = self.hooks.boundary_speed()
+        if wall > 0.0:
+            ratio = self.vmax / wall
+            for key, low, high in (("melt_speed_1_2x", 1, 2), ("melt_speed_2_4x", 2, 4),
+                                   ("melt_speed_over_4x", 4, float("inf"))):
+                self.totals[key] += low < ratio <= high
 
     @ti.kernel
     def _gravity(self, n: ti.i32, dt: float):
@@ -301,6 +314,7 @@ class DFSPHSolver:
         with h.phase("advance"):
             out = d.finish(n, dt, d.shifting * self.dx * self.dx)
         self.vmax = float(out[0])
+        self._record_speed()
         self.ejected += int(out[2])
         self.clamped += int(out[3])
         if out[3] > max(self.clamp_alarm * nf, 10):
@@ -355,6 +369,7 @@ class DFSPHSolver:
         with h.phase("advance"):
             out = self._advance(n, dt)
         self.vmax = float(out[0])
+        self._record_speed()
         if out[1] > 0:
             h.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                "the coupled solve")
@@ -437,6 +452,12 @@ class DFSPHSolver:
             "stokes_free_fragment_steps": self.totals["stokes_free_steps"],
             "stokes_free_fragment_particles_max": self.worst["stokes_free_rows"],
             "speed_clamped_particle_steps": self.clamped,
+            # the fastest melt of the run, and the steps whose fastest melt outran the fastest
+            # wall (the nozzle) by 1-2x, 2-4x, more
+            "melt_speed_max_m_s": self.worst["melt_speed"],
+            "melt_faster_than_walls_steps": {"1-2x": self.totals["melt_speed_1_2x"],
+                                             "2-4x": self.totals["melt_speed_2_4x"],
+                                             ">4x": self.totals["melt_speed_over_4x"]},
             # largest compression of any melt particle over all steps, and its mean over steps
             "compression_error_max_run": self.peak_compression["max"],
             "compression_error_step_max_mean": (self.peak_compression["sum"]
