@@ -22,6 +22,7 @@ import math
 import os
 import platform
 import shlex
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -315,6 +316,10 @@ GPU = [("run", lambda r: r["label"]),
        ("M particle-steps/s", lambda r: f"{r['particle_steps_per_s'] / 1e6:.3f}" if r.get("particle_steps_per_s") else ""),
        ("GPU speed-up: wall, particle-steps/s", lambda r: f"{r['speedup_wall']:.2f}x, {r['speedup_rate']:.2f}x"
         if r.get("speedup_rate") else ""),
+       ("solve / neighbours / output s (`--profile`)", lambda r: " / ".join(
+           f"{r['phase_seconds'].get(k, 0):.1f}" for k in ("coupled solve", "neighbour search",
+                                                           "output and checkpoint"))
+        if r.get("phase_seconds") else ""),
        ("same physics?", _melt_check)]
 
 CASES = {
@@ -387,7 +392,7 @@ CASES = {
         "the dam break's EDAC (143k particles, 100 steps), the bundled bead at draft, benchy's 4 x 4 mm "
         "window's first second and the unscaled paper block to print time 0.8 s (coupled solve)",
         on_both("dam break EDAC", ["bench", "dam-break", "--no-pysph", "--json", "{out}/bench.json"])
-        + on_both("bead, draft", strand(0.2, 0.45, "--resolution", "draft"))
+        + on_both("bead, draft", strand(0.2, 0.45, "--resolution", "draft", "--profile"))
         + on_both("benchy 4 x 4 mm, first second", window(
             "88:92,88:92", "--until", BENCHY_4MM_START_S + 1, "--creeping-solve", "coupled",
             "--no-surface-traction"))
@@ -637,7 +642,12 @@ def shown(cmd: list[str]) -> str:
     return shlex.join(["python", *cmd[1:]])
 
 
-def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[dict], list[str]]:
+#: what --lean keeps of a run's folder: its figures and its log
+LEAN_KEEP = {"summary.json", "bench.json", "config.json", "log.txt"}
+
+
+def run_case(name: str, case: Case, out_root: Path, quick: bool,
+             lean: bool = False) -> tuple[list[dict], list[str]]:
     rows, commands = [], []
     for k, (label, args, *params) in enumerate(case.quick if quick else case.runs):
         out = out_root / f"{k:02d}"
@@ -665,6 +675,10 @@ def run_case(name: str, case: Case, out_root: Path, quick: bool) -> tuple[list[d
             if isinstance(r.get("error"), str):  # a run that stopped (blow-up, refusal)
                 r["stopped"] = r["error"].split(". ")[0]
         rows += got
+        if lean:  # frames, checkpoints, sections: the table needs none of them
+            for f in out.iterdir():
+                if f.name not in LEAN_KEEP:
+                    shutil.rmtree(f) if f.is_dir() else f.unlink()
         print(f"    exit {proc.returncode}, {time.perf_counter() - t0:.0f} s", flush=True)
     return rows, commands
 
@@ -736,6 +750,9 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="coarse, short runs (checks the machinery)")
     p.add_argument("--out", type=Path, default=None, help="keep the runs here (default: a temporary folder)")
     p.add_argument("--commands", action="store_true", help="print the commands and exit")
+    p.add_argument("--lean", action="store_true",
+                   help="keep only each run's summary, config and log in --out (a lent machine "
+                        "returns few files)")
     p.add_argument("--references", action="store_true",
                    help="(re)write every case's reference.csv from its formula and exit")
     args = p.parse_args(argv)
@@ -755,7 +772,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix=f"validation-{args.case}-") as tmp:
         out_root = (args.out or Path(tmp)).resolve()
         t0 = time.perf_counter()
-        rows, commands = run_case(args.case, case, out_root, args.quick)
+        rows, commands = run_case(args.case, case, out_root, args.quick, args.lean)
         if case.finish:
             rows = case.finish(rows)
         wall = time.perf_counter() - t0
