@@ -272,7 +272,11 @@ WINDOW = COMMON + [
         f"{r['estimate']['steps_estimate'] / r['steps']:.2f}, "
         + (f"{r['estimate']['wall_time_estimate_s'] / r['wall_time_s']:.2f}"
            if r['estimate'].get('wall_time_estimate_s') else "-")) if r.get("estimate") and r.get("steps") else ""),
-    ("melt particle-steps/s", num("melt_particle_steps_per_s"))] + LOSSES[:1] + COUPLED_SOLVE
+    ("melt particle-steps/s", num("melt_particle_steps_per_s")),
+    ("fastest melt m/s; steps at 2-4x / >4x the nozzle", lambda r: (
+        f"{r['melt_speed_max_m_s']:.3f}; {r['melt_faster_than_walls_steps']['2-4x']:,} / "
+        f"{r['melt_faster_than_walls_steps']['>4x']:,}") if r.get("melt_faster_than_walls_steps") else "")
+    ] + LOSSES[:1] + COUPLED_SOLVE
 
 def on_both(label, args, params=None):
     """The same command on the CPU (every core) and on the GPU: two runs, paired by label."""
