@@ -529,9 +529,12 @@ class DFSPHOptions:
         0.1, help="coupled solve, block_triangular: the inner viscous solve stops when its "
         "residual has fallen by this factor (-); it sets the cost, not the answer, which the "
         "outer tolerances decide. Looser costs fewer iterations where the outer solve still "
-        "converges (draft bead at 0.3: 41 GMRES / 84 inner a step against 36 / 193, both at the momentum tolerance 1e-6) and stalls "
-        "where it is hard (at 0.3 the collapse's first second and the fine bead's start did "
-        "not converge in 20,000 iterations)",
+        "converges and stalls where it is hard. At 0.3 (2026-12-04): benchy's window to "
+        "t = 179.0 s solved in 34 s against 70 s (20 / 49 GMRES / inner iterations a step "
+        "against 25 / 179), the draft bead in 19.0 against 20.4 s; but a print of "
+        "tests/test_idle stalled at t = 0.551 s (20,000 iterations after four halvings) and "
+        "the collapse's first second, with the surface traction, ran 11 min unfinished (29 s "
+        "at 0.1)",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
