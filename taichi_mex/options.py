@@ -534,7 +534,10 @@ class DFSPHOptions:
         "against 25 / 179), the draft bead in 19.0 against 20.4 s; but a print of "
         "tests/test_idle stalled at t = 0.551 s (20,000 iterations after four halvings) and "
         "the collapse's first second, with the surface traction, ran 11 min unfinished (29 s "
-        "at 0.1)",
+        "at 0.1). Both stalls are the restarted FGMRES stagnating: test_idle's converged at 0.3 "
+        "with a restart of 120, and at 0.2 (19.7 / 77 iterations a step on the window's span), "
+        "but the whole window at 0.3 stopped advancing after t = 187.77 s and at 0.2 had not "
+        "passed it 13 min later: not yet a default",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
