@@ -537,7 +537,7 @@ class DFSPHOptions:
         "at 0.1). Both stalls are the restarted FGMRES stagnating: test_idle's converged at 0.3 "
         "with a restart of 120, and at 0.2 (19.7 / 77 iterations a step on the window's span), "
         "but the whole window at 0.3 stopped advancing after t = 187.77 s and at 0.2 had not "
-        "passed it 13 min later: not yet a default",
+        "passed it 23 min later: not yet a default",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
