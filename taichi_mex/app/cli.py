@@ -61,12 +61,13 @@ def spec_from_args(args, dests: set, scene: str) -> RunSpec:
     return RunSpec.create(scene, args.preset, changes, material=args.material)
 
 
-def run_simulation(spec: RunSpec, out_dir: Path, sim=None, progress: bool = True) -> int:
+def run_simulation(spec: RunSpec, out_dir: Path, sim=None, progress: bool = True,
+                   scene=None) -> int:
     """Print the estimate, run with a progress bar, report where the results are."""
     from taichi_mex.app.progress import ProgressBar
     from taichi_mex.sim.simulation import Simulation
 
-    sim = sim or Simulation.from_spec(spec, out_dir=out_dir)
+    sim = sim or Simulation.from_spec(spec, out_dir=out_dir, scene=scene)
     if sim.resumed:
         print(f"resuming {out_dir} at t = {sim.time_s:.6g} s (step {sim.steps}) of "
               f"{sim.plan.t_end_s:.6g} s")
@@ -126,9 +127,6 @@ def run_warnings(summary: dict, run) -> list[str]:
 
 
 def run_print(argv: list[str]) -> int:
-    from taichi_mex.toolpath.plan import make_plan
-    from taichi_mex.toolpath.trajectory import parse_layers, parse_region
-
     parser, dests = print_parser()
     args = parser.parse_args(argv)
     if args.resume is not None:
@@ -148,17 +146,16 @@ def run_print(argv: list[str]) -> int:
         if args.dry_run:
             raise UserInputError(f"--dry-run plans prints; this description is a '{spec.scene}' scene.")
         return run_simulation(spec, args.out)
-    o = spec.options
-    # planned as the run plans it: through the last selected layer (benchy's layer 3: 2.4 s
-    # against 38 s for the whole file, which the run never reads)
-    plan = make_plan(bundled.resolve_gcode(o.gcode), o.printer, layers=parse_layers(o.layers),
-                     until_s=o.until_s, region_mm=parse_region(o.region), plan_whole_file=False)
+    # the run's own plan, made once: through the last selected layer (benchy's layer 3:
+    # 2.4 s against 38 s for the whole file, which the run never reads)
+    scene = spec.build_scene()
+    plan = scene.print_plan
     print(plan.describe())
     print(material_line(spec))
     print(f"plan written to {plan.write(args.out)}")
     if args.dry_run:
         return 0
-    return run_simulation(spec, args.out)
+    return run_simulation(spec, args.out, scene=scene)
 
 
 def run_scene(argv: list[str]) -> int:

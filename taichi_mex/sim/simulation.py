@@ -69,11 +69,12 @@ def available_memory_bytes() -> int:
 
 class Simulation:
     @classmethod
-    def from_spec(cls, spec, out_dir=None) -> "Simulation":
+    def from_spec(cls, spec, out_dir=None, scene=None) -> "Simulation":
         """The run a :class:`~taichi_mex.spec.RunSpec` describes (the way every entry point
-        builds one)."""
+        builds one). scene: the spec's scene if already built (a print's plan then is not
+        made twice)."""
         spec.validate()
-        return cls(spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset,
+        return cls(scene if scene is not None else spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset,
                    material_source=spec.material_source)
 
     def __init__(self, scene, run: RunOptions | None = None, material: Material | None = None,
