@@ -516,6 +516,11 @@ class DFSPHOptions:
     stokes_restart: int = opt(40, help="coupled solve: GMRES restart length (Krylov vectors "
                               "kept; memory 32 bytes per particle each)",
                               check=Range(2, 500, integer=True))
+    stokes_weighted_norm: bool = opt(
+        True, help="coupled solve: GMRES minimises the residual in the norm the stop reads it "
+        "in (momentum rows through their diagonal blocks, continuity rows by the velocity "
+        "their pressure error moves and by the density criterion; physics/stokes.py, "
+        "\"Norm\"); off: the Euclidean norm", check=Flag())
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",
                                      check=Range(1, 10**7, integer=True))
@@ -528,16 +533,13 @@ class DFSPHOptions:
     stokes_inner_tolerance: float = opt(
         0.1, help="coupled solve, block_triangular: the inner viscous solve stops when its "
         "residual has fallen by this factor (-); it sets the cost, not the answer, which the "
-        "outer tolerances decide. Looser costs fewer iterations where the outer solve still "
-        "converges and stalls where it is hard. At 0.3 (2026-12-04): benchy's window to "
-        "t = 179.0 s solved in 34 s against 70 s (20 / 49 GMRES / inner iterations a step "
-        "against 25 / 179), the draft bead in 19.0 against 20.4 s; but a print of "
-        "tests/test_idle stalled at t = 0.551 s (20,000 iterations after four halvings) and "
-        "the collapse's first second, with the surface traction, ran 11 min unfinished (29 s "
-        "at 0.1). Both stalls are the restarted FGMRES stagnating: test_idle's converged at 0.3 "
-        "with a restart of 120, and at 0.2 (19.7 / 77 iterations a step on the window's span), "
-        "but the whole window at 0.3 stopped advancing after t = 187.77 s and at 0.2 had not "
-        "passed it 23 min later: not yet a default",
+        "outer tolerances decide. Looser costs fewer inner iterations where the outer solve "
+        "still converges. At 0.3 (2026-12-04, GMRES in the stop's norm): the draft bead 16.4 / "
+        "35 GMRES / inner iterations a step against 15.1 / 75, the print of tests/test_idle "
+        "16.3 / 42 against 10.7 / 64 (in the Euclidean norm it stalled at 0.3); but benchy's "
+        "window stalled at t = 181.60 s, one melt row holding 79 % of the residual at 3x the "
+        "tolerance for 3,000 iterations (LGMRES's augmentation stalled at 181.63 s), where "
+        "0.1 runs on: not yet a default",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "

@@ -74,3 +74,14 @@ def test_the_domain_holds_the_tip_wherever_the_run_is_not_idle(tmp_path):
     axis = scene.trajectory.sample(times[busy], clip=True).position_mm[:, :2] * 1e-3
     r_tip = scene.tip_radius_m()
     assert np.all(axis - r_tip >= plan.domain_lo_m[:2]) and np.all(axis + r_tip <= plan.domain_hi_m[:2])
+
+
+def test_a_loose_inner_solve_converges_where_the_nozzle_leaves_melt_at_rest(tmp_path):
+    """Where the nozzle has left melt nearly at rest, the stop's velocity scale is small and
+    the continuity rows' pressure error dominates it. GMRES minimising the Euclidean norm
+    discounted those rows ~1e4 against the momentum rows: at an inner tolerance of 0.3 this
+    print stalled at t = 0.551 s (20,000 iterations after four halvings). In the norm the
+    stop reads (physics/stokes.py, "Norm") it runs through without a halving."""
+    s = _run(tmp_path, "loose", **{"run.dfsph.stokes_inner_tolerance": 0.3})
+    assert s["time_step_halvings"] == 0 and s["particles_lost"] == 0
+    assert not any(s["unconverged_solves_redone"].values())

@@ -143,6 +143,31 @@ by any flow, so its elastic term took the carried volume, k ~ c^2 times it, and 
 flung the fragment (its particles at 0.1-0.3 m/s, the sign alternating step by step: benchy's
 window stopped at t = 187.84 s at 1e-5 as at 1e-3; resumed without the carry, it ran on).
 
+Norm: GMRES minimises the residual in its inner product, and a restarted GMRES advances only
+as far as that norm sees. The stop reads the residual otherwise: the momentum rows through
+B^-1 (B ~ 1 + nu dt / dx^2 ~ 1e4 for a melt), the continuity rows through the velocity their
+pressure error moves, dt B^-1 G(sigma w_k) (sigma ~ 1e3-1e4), and the density criterion.
+In the Euclidean norm the two kinds of row are weighed ~1e4-1e8 apart from how the stop
+weighs them, so GMRES spends its iterations on momentum residual the stop discounts and
+leaves continuity residual the stop counts in full. Measured (2026-12-04): the print of
+tests/test_idle at an inner tolerance of 0.3 stopped at t = 0.551 s, where the nozzle had
+left 168 melt rows nearly at rest (|B^-1 rhs| 5e-5 m/s): the criterion stood at 1.4-2.7
+times the right-hand side, 97 % of it the pressure error of continuity residuals of 1e-5 in
+eight rows, for 20,000 iterations after four halvings, with or without LGMRES's
+augmentation (Baker, Jessup & Manteuffel, SIAM J. Matrix Anal. Appl. 26, 2005: the last
+cycles' corrections appended to each cycle; tried, not kept). So GMRES runs in a weighted
+inner product, <x, y> = sum_i x_i . W_i y_i (weighted GMRES: Essai, Numer. Algorithms 18,
+1998), with W_i diagonal and set per solve from the criterion: a momentum row |B_i^-1|_F^2 / 3
+(B^-1 taken as isotropic); a continuity row k the squared velocity its unit residual moves,
+(sigma_k dt)^2 |B^-1 G e_k|^2 (the column of the pressure's gradient, summed over the rows
+it reaches), plus the density criterion on the momentum's scale, (dt / dx)^2 (tol_u /
+tol_rho)^2 |B^-1 rhs|^2. The norm is the criterion's up to its cross terms, so a cycle's
+running residual predicts the stop. ``stokes_weighted_norm=False`` keeps the Euclidean one.
+Measured on the same prints (2 cores, iterations a step, GMRES / inner): test_idle's print at
+inner 0.1, 14.1 / 73 Euclidean against 10.7 / 64 weighted; at 0.3 stalled against 16.3 /
+42; the draft bundled bead 17.9 / 94 against 15.1 / 75 at 0.1 and 16.4 / 35 at 0.3 (width
+0.474 / 0.474 / 0.467 mm, height 0.193 / 0.195 / 0.196 mm).
+
 Free fragments: melt that touches no wall (no wall or bore particle within H of any of its
 particles, through melt neighbours) moves as a body in free flight: every pair term of L and
 G is equal and opposite and along the pair, so its momentum rows sum to m du/dt = m g and
@@ -205,9 +230,9 @@ class CoupledStokes:
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
                        "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b", "changed",
-                       "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
+                       "Zb", "wt", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
-                       "dots_out", "c2inv",
+                       "dots_out", "c2inv", "coef",
                        # the machine's, not the run's: a resume elsewhere takes its own
                        "on_cpu", "serial_rows")
 
@@ -229,6 +254,7 @@ class CoupledStokes:
         self.dx = float(spacing_m)
         self.rows = rows
         self.m = int(opts.stokes_restart)
+        self.weighted = bool(opts.stokes_weighted_norm)
         self.tol_u = float(opts.stokes_momentum_tolerance)
         self.tol_rho = float(opts.stokes_density_tolerance)
         self.max_iterations = int(opts.stokes_max_iterations)
@@ -270,6 +296,7 @@ class CoupledStokes:
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
+        self.wt = ti.Vector.field(4, ti.f64, shape=cap)  # GMRES's inner product (see "Norm")
         self.dt = ti.field(ti.f64, shape=())
         self.block = 256
         self.n_blocks = max(1, (cap + self.block - 1) // self.block)
@@ -948,6 +975,36 @@ class CoupledStokes:
             s_ii = dt * self.dx * s_ii + self.dx * self.c2inv[None] / dt
             self.sigma[i] = 1.0 / s_ii if s_ii > 0.0 else 0.0
 
+    @ti.func
+    def _weight_task(self, k, slot, j, xkj, acc: ti.template()):
+        """Column k of dt G (k_k's pressure gradient on every row): acc[0:3] the entry at k
+        itself, acc[3] sum_j |B_j^-1 entry_j|^2 over its melt neighbours."""
+        gV = self.V * self.K.F(xkj.norm()) * xkj
+        c = self._corrected(k, gV)
+        for d in ti.static(range(3)):
+            acc[d] += c[d]
+        if self.state.phase[j] == FLUID:
+            acc[3] += (self.Binv[j] @ c).norm_sqr()
+
+    @ti.kernel
+    def _weights(self, n: ti.i32, on: ti.i32, density: ti.f64, S: ti.template()):
+        """The inner product GMRES minimises the residual in (see "Norm"): per momentum row
+        |B^-1|_F^2 / 3, per continuity row the squared velocity its unit residual moves
+        through the pressure error it leaves, (sigma dt)^2 |B^-1 dt G e_k|^2 / dt^2, plus
+        ``density`` (the density criterion on the same scale); all ones when off."""
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            k = self.rows.index[slot]
+            if on == 0:
+                self.wt[k] = ti.Vector([1.0, 1.0, 1.0, 1.0])
+            else:
+                acc = ti.Vector.zero(ti.f64, 4)
+                self.grid.for_each_listed(k, self._weight_task, acc)
+                col = (self.Binv[k] @ ti.Vector([acc[0], acc[1], acc[2]])).norm_sqr() + acc[3]
+                sd = self.sigma[k] * self.dt[None]
+                wu = self.Binv[k].norm_sqr() / 3.0
+                self.wt[k] = ti.Vector([wu, wu, wu, sd * sd * col + density])
+
     @ti.kernel
     def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
         """w = rhs - A X (z = X: X is kept unpreconditioned); returns (|B^-1 (w_u - dt G(dk))|^2
@@ -1026,7 +1083,7 @@ class CoupledStokes:
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
                 i = self.rows.index[slot]
-                s += self.basis[l, i].dot(self.w[i])
+                s += (self.basis[l, i] * self.wt[i]).dot(self.w[i])
             self.part[l, b] = s
         ti.loop_config(serialize=True)
         for l in range(j + 1):
@@ -1134,15 +1191,20 @@ class CoupledStokes:
         free = self._find_free(n, S)
         iterations = 0
         m = self.m
+        first = True
         while True:
             if free:
                 self._rigid(n, S)
             ru, rb, rmax = self._residual(n, S).to_numpy()
             rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
+            if first:  # the norm, once the criterion's scale |B^-1 rhs| is known
+                scale = (float(dt) / self.dx) ** 2 * self.tol_u ** 2 * (rb if rb > 0.0 else 1.0)
+                self._weights(n, int(self.weighted), scale / self.tol_rho ** 2, S)
+                first = False
             done = rel <= self.tol_u and rmax <= self.tol_rho
-            log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g", iterations,
-                      rel, rmax)
             beta = float(np.sqrt(self._sum(n, False, S)))  # |w|: the Krylov space's start
+            log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g, |w| %.3g",
+                      iterations, rel, rmax, beta)
             if done or iterations >= self.max_iterations or beta == 0.0:
                 break  # w holds the residual of X: the result is read from it below
             self._store(n, 0, beta, S)
@@ -1205,7 +1267,7 @@ class CoupledStokes:
                 if ti.static(continuity):
                     s += ti.abs(self.w[i][3])
                 else:
-                    s += self.w[i].dot(self.w[i])
+                    s += (self.w[i] * self.wt[i]).dot(self.w[i])
             self.part[0, b] = s
         return self._in_order(self.part, 0, nb)
 

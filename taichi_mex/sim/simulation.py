@@ -203,7 +203,7 @@ class Simulation:
             # flexible GMRES's preconditioned vectors (restart), a cached coefficient per list
             # slot, and about 20 vectors and matrices of scratch
             m = run.dfsph.stokes_restart
-            per_particle += (2 * m + 1) * 32 + 8 * max_nbr + 600
+            per_particle += (2 * m + 2) * 32 + 8 * max_nbr + 600
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
