@@ -166,7 +166,9 @@ running residual predicts the stop (``stokes_weighted_norm``; off by default, be
 Measured on the same prints (2 cores, iterations a step, GMRES / inner): test_idle's print at
 inner 0.1, 14.1 / 73 Euclidean against 10.7 / 64 weighted; at 0.3 stalled against 16.3 /
 42; the draft bundled bead 17.9 / 94 against 15.1 / 75 at 0.1 and 16.4 / 35 at 0.3 (width
-0.474 / 0.474 / 0.467 mm, height 0.193 / 0.195 / 0.196 mm). But benchy's whole window, the
+0.474 / 0.474 / 0.467 mm, height 0.193 / 0.195 / 0.196 mm); the collapse's first second (R =
+H = 4 mm, 10 Pa s, 0.5 mm, the surface traction on) 48.9 / 495 against 46.8 / 403 at 0.1,
+and at 0.3 unfinished after 300 s against 21 steps at 53 / 182. But benchy's whole window, the
 two norms run side by side at 0.1: the Euclidean ran to the end (8,601 steps, two halvings, nothing lost,
 34.6 / 257 a step), the weighted stalled at t = 188.75 s, where no solve converged in 3,000
 iterations, the residual spread over a dozen melt rows moving at 0.03-0.07 m/s, and the
