@@ -169,11 +169,12 @@ inner 0.1, 14.1 / 73 Euclidean against 10.7 / 64 weighted; at 0.3 stalled agains
 0.474 / 0.474 / 0.467 mm, height 0.193 / 0.195 / 0.196 mm); the collapse's first second (R =
 H = 4 mm, 10 Pa s, 0.5 mm, the surface traction on) 48.9 / 495 against 46.8 / 403 at 0.1,
 and at 0.3 unfinished after 300 s against 21 steps at 53 / 182. But benchy's whole window, the
-two norms run side by side at 0.1: the Euclidean ran to the end (8,601 steps, two halvings, nothing lost,
-34.6 / 257 a step), the weighted stalled at t = 188.75 s, where no solve converged in 3,000
-iterations, the residual spread over a dozen melt rows moving at 0.03-0.07 m/s, and the
-weighted norm 3.4x the criterion there (the cross terms it leaves out); from that state the
-Euclidean norm ran to the window's end, no solve above 150 iterations. At 0.3 it stalled at
+two norms run side by side at 0.1: the Euclidean ran to the end (8,601 steps, two
+halvings, nothing lost, 34.6 / 257 a step), the weighted stalled at t = 188.75 s, where no
+solve converged in 3,000 iterations, the residual spread over a dozen melt rows moving at
+0.03-0.07 m/s, and the weighted norm 3.4x the criterion there (the cross terms it leaves
+out); from that state the Euclidean norm ran to the window's end, no solve above 150
+iterations. At 0.3 it stalled at
 t = 181.60 s, one row holding 79 % of the criterion. A film at 1 Pa s with a noisy pressure
 memory: 2.1 % of the fastest velocity off the converged solution in 140 iterations against
 0.7 % in 240 Euclidean (tests/test_stokes.py), so the weighted GMRES stops where the
@@ -307,7 +308,8 @@ class CoupledStokes:
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
-        self.wt = ti.Vector.field(4, ti.f64, shape=cap)  # GMRES's inner product (see "Norm")
+        # GMRES's inner product (see "Norm"); the Euclidean norm reads no weights
+        self.wt = ti.Vector.field(4, ti.f64, shape=cap if self.weighted else 1)
         self.dt = ti.field(ti.f64, shape=())
         self.block = 256
         self.n_blocks = max(1, (cap + self.block - 1) // self.block)
@@ -998,23 +1000,28 @@ class CoupledStokes:
             acc[3] += (self.Binv[j] @ c).norm_sqr()
 
     @ti.kernel
-    def _weights(self, n: ti.i32, on: ti.i32, density: ti.f64, S: ti.template()):
+    def _weights(self, n: ti.i32, density: ti.f64, S: ti.template()):
         """The inner product GMRES minimises the residual in (see "Norm"): per momentum row
         |B^-1|_F^2 / 3, per continuity row the squared velocity its unit residual moves
-        through the pressure error it leaves, (sigma dt)^2 |B^-1 dt G e_k|^2 / dt^2, plus
-        ``density`` (the density criterion on the same scale); all ones when off."""
+        through the pressure error it leaves, (sigma dt)^2 |B^-1 G e_k|^2, plus ``density``
+        (the density criterion on the same scale)."""
         ti.loop_config(serialize=S)
         for slot in range(n):
             k = self.rows.index[slot]
-            if on == 0:
-                self.wt[k] = ti.Vector([1.0, 1.0, 1.0, 1.0])
-            else:
-                acc = ti.Vector.zero(ti.f64, 4)
-                self.grid.for_each_listed(k, self._weight_task, acc)
-                col = (self.Binv[k] @ ti.Vector([acc[0], acc[1], acc[2]])).norm_sqr() + acc[3]
-                sd = self.sigma[k] * self.dt[None]
-                wu = self.Binv[k].norm_sqr() / 3.0
-                self.wt[k] = ti.Vector([wu, wu, wu, sd * sd * col + density])
+            acc = ti.Vector.zero(ti.f64, 4)
+            self.grid.for_each_listed(k, self._weight_task, acc)
+            col = (self.Binv[k] @ ti.Vector([acc[0], acc[1], acc[2]])).norm_sqr() + acc[3]
+            sd = self.sigma[k] * self.dt[None]
+            wu = self.Binv[k].norm_sqr() / 3.0
+            self.wt[k] = ti.Vector([wu, wu, wu, sd * sd * col + density])
+
+    @ti.func
+    def _dot(self, i, a, b):
+        """a . b at row i in GMRES's inner product."""
+        d = a.dot(b)
+        if ti.static(self.weighted):
+            d = (a * self.wt[i]).dot(b)
+        return d
 
     @ti.kernel
     def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
@@ -1094,7 +1101,7 @@ class CoupledStokes:
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
                 i = self.rows.index[slot]
-                s += (self.basis[l, i] * self.wt[i]).dot(self.w[i])
+                s += self._dot(i, self.basis[l, i], self.w[i])
             self.part[l, b] = s
         ti.loop_config(serialize=True)
         for l in range(j + 1):
@@ -1208,10 +1215,10 @@ class CoupledStokes:
                 self._rigid(n, S)
             ru, rb, rmax = self._residual(n, S).to_numpy()
             rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
-            if first:  # the norm, once the criterion's scale |B^-1 rhs| is known
+            if first and self.weighted:  # the norm, once the criterion's scale |B^-1 rhs| is known
                 scale = (float(dt) / self.dx) ** 2 * self.tol_u ** 2 * (rb if rb > 0.0 else 1.0)
-                self._weights(n, int(self.weighted), scale / self.tol_rho ** 2, S)
-                first = False
+                self._weights(n, scale / self.tol_rho ** 2, S)
+            first = False
             done = rel <= self.tol_u and rmax <= self.tol_rho
             beta = float(np.sqrt(self._sum(n, False, S)))  # |w|: the Krylov space's start
             log.debug("coupled solve: %d iterations, momentum %.3g, density %.3g, |w| %.3g",
@@ -1278,7 +1285,7 @@ class CoupledStokes:
                 if ti.static(continuity):
                     s += ti.abs(self.w[i][3])
                 else:
-                    s += (self.w[i] * self.wt[i]).dot(self.w[i])
+                    s += self._dot(i, self.w[i], self.w[i])
             self.part[0, b] = s
         return self._in_order(self.part, 0, nb)
 

@@ -74,8 +74,8 @@ class Simulation:
         builds one). scene: the spec's scene if already built (a print's plan then is not
         made twice)."""
         spec.validate()
-        return cls(scene if scene is not None else spec.build_scene(), spec.run, spec.material, out_dir=out_dir, preset=spec.preset,
-                   material_source=spec.material_source)
+        return cls(scene if scene is not None else spec.build_scene(), spec.run, spec.material,
+                   out_dir=out_dir, preset=spec.preset, material_source=spec.material_source)
 
     def __init__(self, scene, run: RunOptions | None = None, material: Material | None = None,
                  out_dir=None, preset: str | None = None, material_source: str | None = None):
@@ -203,7 +203,8 @@ class Simulation:
             # flexible GMRES's preconditioned vectors (restart), a cached coefficient per list
             # slot, and about 20 vectors and matrices of scratch
             m = run.dfsph.stokes_restart
-            per_particle += (2 * m + 2) * 32 + 8 * max_nbr + 600
+            weights = 32 if run.dfsph.stokes_weighted_norm else 0  # GMRES's inner product
+            per_particle += (2 * m + 1) * 32 + weights + 8 * max_nbr + 600
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
