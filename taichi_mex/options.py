@@ -502,31 +502,33 @@ class DFSPHOptions:
         "delete flung melt and clamp its speed; the default of the other scenes)",
         check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
-        1e-3, help="coupled solve: velocity error it stops at, relative to the step's "
+        3e-4, help="coupled solve: velocity error it stops at, relative to the step's "
         "velocities (-): the momentum rows' residual and the motion the pressure error the "
         "continuity rows leave would cause (each step solves afresh, so the error is not "
-        "inherited; physics/stokes.py, \"Tolerance\")",
+        "inherited; physics/stokes.py, \"Tolerance\"). A residual's measure: on a film whose "
+        "pressure memory carries noise, the velocities' true error was 25x it (2.5 % at "
+        "3e-4, 7.5 % at 1e-3); at 1e-3 the standard bead came out 2 % wider and benchy's "
+        "window flung a particle past the speed limit (2026-12-04)",
         check=Range(0.0, 0.1, lo_open=True))
     stokes_density_tolerance: float = opt(
-        1e-3, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-). "
-        "Compression it leaves the next step's kernel sum removes; expansion stays, and at "
-        "1e-3 the draft bead's interior kernel sums were as close to rho0 as at 1e-5 (0.0082 "
-        "off on average)",
+        3e-4, help="coupled solve: largest density error dt |D(u) - s| a step may leave (-). "
+        "Compression it leaves the next step's kernel sum removes; expansion stays (at 1e-3 "
+        "the draft bead's interior kernel sums were as close to rho0 as at 1e-5, 0.0082 off "
+        "on average)",
         check=Range(0.0, 0.1, lo_open=True))
     stokes_restart: int = opt(40, help="coupled solve: GMRES restart length (Krylov vectors "
                               "kept; memory 32 bytes per particle each)",
                               check=Range(2, 500, integer=True))
-    stokes_weighted_norm: bool = opt(
-        False, help="coupled solve: GMRES minimises the residual in the norm the stop reads it "
-        "in (momentum rows through their diagonal blocks, continuity rows by the velocity "
-        "their pressure error moves and by the density criterion; physics/stokes.py, "
-        "\"Norm\"); off: the Euclidean norm. On, a print of tests/test_idle converges at an "
-        "inner tolerance of 0.3 (it stalls off) and the draft bead takes 15.1 / 75 GMRES / "
-        "inner iterations a step against 17.9 / 94, the collapse's first second (10 Pa s, "
-        "0.5 mm, traction on) at inner 0.3 runs in 21 steps at 53 / 182 (unfinished after "
-        "300 s off), but benchy's whole window stalled at "
-        "t = 188.75 s (2026-12-04) where the Euclidean norm runs the window to its end: not yet "
-        "a default", check=Flag())
+    stokes_norm: str = opt(
+        "criterion", help="coupled solve: the norm GMRES minimises the residual in: "
+        "'criterion', the one its stop reads (the velocity error the residual stands for, "
+        "through the momentum rows' diagonal blocks and the motion the continuity rows' "
+        "pressure error causes, and the density error on the same scale; physics/stokes.py, "
+        "\"Norm\"), at one more pressure-gradient sum an iteration; or 'euclidean'. Benchy's "
+        "4 x 4 mm window, side by side (2026-12-04): 17.9 / 102 GMRES / inner iterations a "
+        "step at the defaults against 34.6 / 257 Euclidean at the earlier ones (inner 0.1, "
+        "tolerances 1e-3)",
+        check=OneOf("criterion", "euclidean"))
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",
                                      check=Range(1, 10**7, integer=True))
@@ -537,15 +539,12 @@ class DFSPHOptions:
         "and the Schur approximation; GMRES)", check=OneOf("block_triangular", "block_diagonal"),
         flag="--stokes-preconditioner")
     stokes_inner_tolerance: float = opt(
-        0.1, help="coupled solve, block_triangular: the inner viscous solve stops when its "
+        0.3, help="coupled solve, block_triangular: the inner viscous solve stops when its "
         "residual has fallen by this factor (-); it sets the cost, not the answer, which the "
-        "outer tolerances decide. Looser costs fewer inner iterations where the outer solve "
-        "still converges. At 0.3 (2026-12-04, GMRES in the stop's norm): the draft bead 16.4 / "
-        "35 GMRES / inner iterations a step against 15.1 / 75, the print of tests/test_idle "
-        "16.3 / 42 against 10.7 / 64 (in the Euclidean norm it stalled at 0.3); but benchy's "
-        "window stalled at t = 181.60 s, one melt row holding 79 % of the residual at 3x the "
-        "tolerance for 3,000 iterations (LGMRES's augmentation stalled at 181.63 s), where "
-        "0.1 runs on: not yet a default",
+        "outer tolerances decide. Benchy's 4 x 4 mm window (2026-12-04, GMRES in the stop's "
+        "norm, tolerances 3e-4): 17.9 / 102 GMRES / inner iterations a step; the standard "
+        "bead 20.3 / 56 at 0.3 against 13.8 / 81 at 0.1 (tolerances 1e-3). In the Euclidean "
+        "norm 0.3 stalled (a print of tests/test_idle at t = 0.551 s)",
         check=Range(0.0, 1.0, lo_open=True, hi_open=True))
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "

@@ -132,6 +132,24 @@ def test_resume_after_ctrl_c_reaches_the_uninterrupted_end(tmp_path):
         assert abs(end[key] - whole[key]) < 1e3 * dx
 
 
+def test_a_blow_up_keeps_the_state_it_stopped_in(tmp_path):
+    """A run stopped by the speed limit writes the state that broke it as its last frame:
+    the frame before it can be seconds of print earlier, and the flung particle is the
+    thing to look at."""
+    from taichi_mex.errors import SimulationDiverged
+    from taichi_mex.post.output import read_frames
+
+    spec = RunSpec.create("print", changes={**SHORT, "run.snapshots": False,
+                                            "run.max_speed_m_s": 0.005})
+    with pytest.raises(SimulationDiverged, match=r"blew up at t = ([0-9.e-]+) s") as err:
+        _run(spec, tmp_path)
+    t_stop = float(re.search(r"blew up at t = ([0-9.e-]+) s", str(err.value)).group(1))
+    last = read_frames(tmp_path / "particles.h5")[-1]
+    assert last["time_s"] == pytest.approx(t_stop, rel=1e-5)
+    fast = np.linalg.norm(last["velocity"][np.isin(last["phase"], (0, 1))], axis=1).max()
+    assert fast > 0.005
+
+
 @pytest.mark.parametrize("name", [n if n == "pla" else pytest.param(n, marks=pytest.mark.slow)
                                   for n in materials.known()])  # PLA is every other test's melt
 def test_every_material_loads_and_runs_a_short_bead(tmp_path, name):

@@ -13,7 +13,7 @@ from taichi_mex.sim.simulation import Simulation
 from taichi_mex.spec import RunSpec
 
 SPEED = 1e-3  # the disc's, m/s (the scene's default)
-#: tests that compare two solutions to 1e-3 of V solve to 1e-6 (the run's default, 1e-3, is
+#: tests that compare two solutions to 1e-3 of V solve to 1e-6 (the run's default, 3e-4, is
 #: a step's, whose error the next step does not inherit)
 TIGHT = {"run.dfsph.stokes_momentum_tolerance": 1e-6, "run.dfsph.stokes_density_tolerance": 1e-6}
 
@@ -281,15 +281,18 @@ def test_the_tolerance_counts_the_velocity_a_pressure_error_causes():
     """With the bulk modulus in the continuity rows, a density residual r leaves k free by up
     to c^2 r; where the viscous coupling is weak the melt moves with it. The film at 1 Pa s,
     its pressure memory k_n perturbed by noise (an odd-even part, as the collocated pressure
-    carries): the solve at the default tolerances, stopped on the momentum rows' residual
-    alone, put velocities 26 % of the fastest away from the converged solution's; counting
-    the motion of the pressure error (physics/stokes.py, "Tolerance"), 0.7 % in 240 GMRES
-    iterations. GMRES in the stop's own norm ("Norm", an option) stops sooner: 2.1 % in 140
-    (0.5 % in 166 at tolerances of 3e-4). On benchy's window the difference was a fragment
+    carries): the solve at tolerances of 1e-3, stopped on the momentum rows' residual alone,
+    put velocities 26 % of the fastest away from the converged solution's. Counting the
+    motion of the pressure error (physics/stokes.py, "Tolerance"), with GMRES minimising
+    exactly that ("Norm"), the error follows the tolerance: 2.5 % at the default 3e-4 (153
+    GMRES iterations), 0.9 % at 1e-4 (180), 7.5 % at 1e-3 (127); the Euclidean norm at 1e-3
+    over-solved to 0.7 % in 240. A residual reads smooth errors (L / dx)^2 too small, so the
+    default is 3e-4, not 1e-3 (2026-12-04). On benchy's window the difference was a fragment
     moving at 0.08-0.56 m/s, or not."""
     out = []
-    for tight in (False, True):
-        sim = _film(1.0, **(TIGHT if tight else {}))
+    for tol in (None, 1e-4, 1e-6):
+        sim = _film(1.0, **({} if tol is None else {"run.dfsph.stokes_momentum_tolerance": tol,
+                                                   "run.dfsph.stokes_density_tolerance": tol}))
         assert sim.solver.quasi_static().converged
         st, kappa = sim.solver.stokes, sim.solver.dfsph.kappa
         n = sim.state.n
@@ -303,7 +306,9 @@ def test_the_tolerance_counts_the_velocity_a_pressure_error_causes():
         assert st.solve(1e-4, kappa).converged
         x = sim.state.numpy("position", FLUID)
         out.append(sim.state.numpy("velocity", FLUID)[np.lexsort(x.T)])
-    assert np.abs(out[0] - out[1]).max() < 0.02 * np.abs(out[1]).max()
+    scale = np.abs(out[2]).max()
+    error = [np.abs(o - out[2]).max() / scale for o in out[:2]]
+    assert error[0] < 0.03 and error[1] < 0.012
 
 
 def test_a_free_fragment_keeps_its_momentum():

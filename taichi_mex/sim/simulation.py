@@ -203,7 +203,8 @@ class Simulation:
             # flexible GMRES's preconditioned vectors (restart), a cached coefficient per list
             # slot, and about 20 vectors and matrices of scratch
             m = run.dfsph.stokes_restart
-            weights = 32 if run.dfsph.stokes_weighted_norm else 0  # GMRES's inner product
+            # GMRES's inner product: T of each basis vector and of w
+            weights = (m + 2) * 32 if run.dfsph.stokes_norm == "criterion" else 0
             per_particle += (2 * m + 1) * 32 + weights + 8 * max_nbr + 600
         memory = capacity * per_particle + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
@@ -598,7 +599,10 @@ class Simulation:
             if reporter is not None:
                 reporter.close()
         wall = time.perf_counter() - wall0
-        if writer is not None and interrupted:
+        # the state a run stopped in is its most telling frame: kept when interrupted, and
+        # when it blew up with finite values (a particle over the speed limit, say)
+        if writer is not None and (interrupted or (error is not None and all(
+                np.isfinite(self.state.numpy(f)).all() for f in ("position", "velocity")))):
             self._write_frame(writer, t)
         summary = self.summary(wall, particle_steps, dt_limits)
         summary["skipped_spans"] = self.skipped
@@ -618,7 +622,8 @@ class Simulation:
 
     def diverged(self, t: float, what: str) -> None:
         raise SimulationDiverged(f"The simulation blew up at t = {t:.6g} s: {what}. Frames "
-                                 "written so far are kept. " + self._likely_cause())
+                                 "written so far are kept, and the state it stopped in where "
+                                 "it is finite. " + self._likely_cause())
 
     # ----------------------------------------------------------------- output
     def config_dict(self) -> dict:
