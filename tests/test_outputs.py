@@ -125,11 +125,13 @@ def test_resume_after_ctrl_c_reaches_the_uninterrupted_end(tmp_path):
     assert end["deposited_volume_mm3"] == pytest.approx(whole["deposited_volume_mm3"], rel=1e-12)
     assert end["particles_active"] == whole["particles_active"]
     frames = {name: read_frames(tmp_path / name / "particles.h5")[-1] for name in ("whole", "cut")}
-    melt = {k: np.sort(f["position"][np.isin(f["phase"], (0, 1))], axis=0) for k, f in frames.items()}
-    dx = spec.run.spacing_m
-    assert np.abs(melt["whole"] - melt["cut"]).max() < dx  # the bead's shape within one spacing
+    melt = {k: f["position"][np.isin(f["phase"], (0, 1))] for k, f in frames.items()}
+    # to the bit: every loop sums in a fixed order and the checkpoint holds the whole state
+    # (benchy's window, cut at t = 181.46 s and resumed, matched its uninterrupted frame at
+    # 183.92 s to the bit as well, 2026-12-04)
+    assert np.array_equal(melt["whole"], melt["cut"])
     for key in ("bead_width_p99_mm", "bead_height_p99_mm"):
-        assert abs(end[key] - whole[key]) < 1e3 * dx
+        assert end[key] == whole[key]
 
 
 def test_a_blow_up_keeps_the_state_it_stopped_in(tmp_path):
