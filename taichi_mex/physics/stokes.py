@@ -996,20 +996,32 @@ class CoupledStokes:
             s_ii = dt * self.dx * s_ii + self.dx * self.c2inv[None] / dt
             self.sigma[i] = 1.0 / s_ii if s_ii > 0.0 else 0.0
 
-    @ti.kernel
-    def _criterion(self, n: ti.i32, S: ti.template()) -> ti.f64:
-        """tw = T w = (B^-1 (w_u - dt G(-sigma w_k)), c w_k): the velocity error w stands for
-        and its density error on the same scale (see "Norm"); returns |T w|^2."""
+    @ti.func
+    def _pressure_error(self, n, S: ti.template()):
+        """z's k = -sigma w_k: the pressure error the continuity residual leaves, as the
+        preconditioner reads it (see "Tolerance")."""
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
+
+    @ti.func
+    def _velocity_error(self, i):
+        """w_u - dt G(-sigma w_k) at row i (after _pressure_error): the velocity error the
+        residual stands for; B^-1 of it is the stop's measure."""
+        wi = self.w[i]
+        return ti.Vector([wi[0], wi[1], wi[2]]) - self._dt_pressure(i)
+
+    @ti.kernel
+    def _criterion(self, n: ti.i32, S: ti.template()) -> ti.f64:
+        """tw = T w = (B^-1 (w_u - dt G(-sigma w_k)), c w_k): the velocity error w stands for
+        and its density error on the same scale (see "Norm"); returns |T w|^2."""
+        self._pressure_error(n, S)
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            wi = self.w[i]
-            e = self.Binv[i] @ (ti.Vector([wi[0], wi[1], wi[2]]) - self._dt_pressure(i))
-            self.tw[i] = ti.Vector([e[0], e[1], e[2], self.crho[None] * wi[3]])
+            e = self.Binv[i] @ self._velocity_error(i)
+            self.tw[i] = ti.Vector([e[0], e[1], e[2], self.crho[None] * self.w[i][3]])
         return self._w_sum(n, False, S)
 
     @ti.kernel
@@ -1030,14 +1042,11 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[i] = self.rhs[i] - self.w[i]
-            # the velocity error the residual stands for, through the preconditioner's own
-            # blocks: k's correction -sigma w_k moves the melt by dt G of it (see "Tolerance")
-            self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
+        self._pressure_error(n, S)
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            wi = self.w[i]
-            self.werr[i] = ti.Vector([wi[0], wi[1], wi[2]]) - self._dt_pressure(i)
+            self.werr[i] = self._velocity_error(i)
         return self._norms(n, S)
 
     @ti.func
@@ -1208,18 +1217,16 @@ class CoupledStokes:
         free = self._find_free(n, S)
         iterations = 0
         m = self.m
-        first = True
         while True:
             if free:
                 self._rigid(n, S)
             ru, rb, rmax = self._residual(n, S).to_numpy()
             rel = (ru / rb) ** 0.5 if rb > 0.0 else ru ** 0.5
-            if first and self.exact:
-                # T's density weight, once the criterion's scale |B^-1 rhs| is known: a density
-                # error at its tolerance weighs as a velocity error at its own
+            if self.exact:
+                # T's density weight: a density error at its tolerance weighs as a velocity
+                # error at its own on the criterion's scale |B^-1 rhs| (fixed within a solve)
                 scale = float(dt) / self.dx * self.tol_u * float(np.sqrt(rb if rb > 0.0 else 1.0))
                 self.crho[None] = scale / self.tol_rho
-            first = False
             done = rel <= self.tol_u and rmax <= self.tol_rho
             if self.exact:
                 beta = float(np.sqrt(self._criterion(n, S)))  # |T w|: the Krylov space's start
