@@ -529,6 +529,14 @@ class DFSPHOptions:
         "step at the defaults against 34.6 / 257 Euclidean at the earlier ones (inner 0.1, "
         "tolerances 1e-3)",
         check=OneOf("criterion", "euclidean"))
+    stokes_initial_guess: str = opt(
+        "previous", help="coupled solve: where GMRES starts, 'previous' (the melt's present "
+        "velocity v_n) or 'extrapolated' (each melt particle's from its last two steps, "
+        "v_n + (dt / dt_n-1)(v_n - v_n-1)). Both stop at the same tolerances; the extrapolated "
+        "start saves iterations on a smooth print (test_idle's 11.4 / 37 against 13.1 / 57 "
+        "GMRES / inner a step) but carries forward the error the stop reads weakly (benchy's "
+        "window flung more melt; physics/stokes.py, \"Initial guess\")",
+        check=OneOf("previous", "extrapolated"))
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",
                                      check=Range(1, 10**7, integer=True))

@@ -91,6 +91,39 @@ def test_layers_above_the_first_print_on_a_solid_substrate():
     assert volume == pytest.approx(layer1, rel=0.1)
 
 
+def test_the_nozzle_is_its_flat_tip_and_a_flank_at_its_angle_up_to_the_domains_top():
+    """Above the flat tip (a slab as thick as the bore column) the nozzle's flank rises at its
+    angle from the face's edge, a shell at least the slab thick along its normal, and reaches
+    the domain's top wherever the nozzle is: melt the tip ploughs up meets it (with the slab
+    alone, benchy's window lost 8 particles through the domain's top riding on it)."""
+    from taichi_mex.sim.boundaries import nozzle_tip_lattice
+
+    dx, bore, tip, slices = 0.05e-3, 0.2e-3, 0.5e-3, 4
+    flat = nozzle_tip_lattice(bore, tip, dx, slices)
+    assert flat[:, 2].max() < slices * dx
+    for angle in (30.0, 45.0, 60.0):
+        pts = nozzle_tip_lattice(bore, tip, dx, slices, angle, 1.0e-3)
+        r, z = np.linalg.norm(pts[:, :2], axis=1), pts[:, 2]
+        assert len(pts) > len(flat) and z.max() > 1.0e-3 - dx
+        assert np.allclose(np.sort(pts[z < slices * dx], axis=0), np.sort(flat, axis=0))
+        above = z > slices * dx
+        surface = tip + (z[above] - slices * dx) / np.tan(np.radians(angle))
+        assert np.all(r[above] < surface) and np.all(r[above] > surface - dx - slices * dx
+                                                     / np.sin(np.radians(angle)))
+        # each slice's outermost particle is within a spacing of the flank's surface
+        for zk in np.unique(z[above]):
+            k = z[above] == zk
+            assert surface[k][0] - r[above][k].max() < 1.5 * dx
+    opts = RunOptions(spacing_mm=0.1)
+    plan = PrintScene(bundled.gcode_path("single_bead")).plan(opts, Material())
+    assert plan.inlet.flank_angle_deg == 45.0
+    # the bundled bead's nozzle is at z = 0.2 mm throughout
+    assert plan.inlet.body_height_m == pytest.approx(plan.domain_hi_m[2] - 0.2e-3, rel=1e-9)
+    flat_plan = PrintScene(bundled.gcode_path("single_bead"), nozzle_flank_angle_deg=None).plan(
+        opts, Material())
+    assert flat_plan.inlet.flank_angle_deg is None
+
+
 def test_a_window_on_a_substrate_reports_only_its_own_melt_as_deposited(tmp_path):
     """The substrate a layer window starts on was printed before the run: deposited counts the
     melt the run released (it counted the substrate too: 3.2 mm^3 'deposited' of 0.02)."""

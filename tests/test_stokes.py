@@ -95,6 +95,14 @@ def test_both_preconditioners_reach_the_same_solution():
     assert rt.iterations < 0.5 * rd.iterations
 
 
+def _by_particle(st, field):
+    """A vector the solve stores by row (slot), such as w, laid out by particle."""
+    n = st.rows.n
+    out = np.zeros((st.state.capacity, 4))
+    out[st.rows.index.to_numpy()[:n]] = field.to_numpy()[:n]
+    return out
+
+
 @pytest.mark.parametrize("step", ["quasi_static", "creeping"])
 def test_the_pressure_preconditioner_is_the_diagonal_of_simples_schur_approximation(step):
     """sigma_i = 1 / (C B^-1 B_p)_ii, assembled pair by pair in the set-up, equals the product
@@ -121,7 +129,7 @@ def test_the_pressure_preconditioner_is_the_diagonal_of_simples_schur_approximat
     def apply(x):
         st.X.from_numpy(x)
         st._residual(n, st.serial(n))
-        return rhs - st.w.to_numpy()
+        return rhs - _by_particle(st, st.w)
 
     for i in rows[:: max(1, n // 6)]:
         x = np.zeros_like(rhs)
@@ -157,7 +165,7 @@ def _momentum_block(sim):
         x[rows, :3] = u
         st.X.from_numpy(x)
         st._residual(n, st.serial(n))
-        return (rhs - st.w.to_numpy())[rows, :3]
+        return (rhs - _by_particle(st, st.w))[rows, :3]
 
     return apply, sim.state.numpy("position")[rows]
 
@@ -270,8 +278,8 @@ def test_a_compression_no_flow_relieves_settles_on_a_pressure():
     rho[: sim.state.n][melt] *= 1.01
     sim.state.rho.from_numpy(rho)
     peaks = []
-    for _ in range(8):
-        assert st.solve(1e-4, kappa).converged
+    for _ in range(8):  # the same step again and again: no history to extrapolate from
+        assert st.solve(1e-4, kappa, extrapolate=False).converged
         peaks.append(kappa.to_numpy()[: sim.state.n][melt].max())
     assert peaks[-1] == pytest.approx(peaks[-2], rel=1e-6)
     assert peaks[-1] < 1.1 * peaks[0]

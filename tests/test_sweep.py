@@ -265,23 +265,30 @@ dt_factor = [1.0, 0.01]   # the second run takes minutes: it is still running at
         # wrote params.json): under load the second once had not started 2 s after the
         # first was done, and a run never started is rightly 'pending'
         deadline = time.time() + 240
+        ready = False
         while time.time() < deadline and proc.poll() is None:
             done = [n for n, r in _records(out).items() if r["status"] == "done"]
             started = [p.parent.name for p in (out / "runs").glob("*/params.json")]
             if done and set(started) - set(done):
+                ready = True
                 break
             time.sleep(0.5)
+        seen = {n: r["status"] for n, r in _records(out).items()}  # what the Ctrl-C met
         os.killpg(proc.pid, signal.SIGINT)
         text, _ = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, text
-    assert "Traceback" not in text
+    # every message carries the sweep's output and the records before and after the Ctrl-C:
+    # a failure here once left nothing to read (2026-12-04)
     records = _records(out)
-    assert sorted(r["status"] for r in records.values()) == ["done", "interrupted"]
+    said = f"records at Ctrl-C {seen}, after {records}; output:\n{text}"
+    assert ready, "the second run never started beside a finished first one: " + said
+    assert proc.returncode == 130, said
+    assert "Traceback" not in text, said
+    assert sorted(r["status"] for r in records.values()) == ["done", "interrupted"], said
     rows = list(csv.DictReader((out / "results.csv").open()))
-    assert sorted(r["status"] for r in rows) == ["done", "interrupted"]
+    assert sorted(r["status"] for r in rows) == ["done", "interrupted"], f"{rows}; " + said
 
 
 def test_after_ctrl_c_a_run_started_without_a_record_is_interrupted(tmp_path):

@@ -201,6 +201,20 @@ net moment: a coarse correction on the rigid modes, as deflation removes known n
 modes from a Krylov solve (Nicolaides, SIAM J. Numer. Anal. 24, 1987). Their deformation is
 stiff, and the tolerance sees it.
 
+Initial guess: the solve starts from the melt's present velocity v_n, or (option
+stokes_initial_guess = 'extrapolated') from each melt particle's velocity extrapolated from
+its last two steps, v_n + (dt / dt_n-1)(v_n - v_n-1), the simplest of the predictors that
+start a solve from earlier solutions (Fischer, Comput. Methods Appl. Mech. Engrg. 163, 1998).
+Particles entering the domain start their history at their own velocity; a solve that is no
+step (quasi-static) and an idle span, which sets the melt at rest, void it. The stop is the
+same either way. The extrapolated start is closer (benchy's window, 0.12 s from t = 183.92 s:
+starting residual 0.056 against 0.084, density error 0.0011 against 0.0029, medians; 16.8 /
+84 against 18.5 / 101 GMRES / inner iterations a step; test_idle's print 11.4 / 37 against
+13.1 / 57), but it carries forward whatever error the stop leaves in modes it reads weakly,
+where v_n alone keeps it: over benchy's whole window the extrapolated start had more melt
+flung faster than 4x the nozzle, not fewer iterations (validation/windows, 2026-12-04). Not
+the default, then.
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -245,7 +259,7 @@ class StokesResult:
 class CoupledStokes:
     #: Krylov basis and scratch, rebuilt by every solve: not part of a checkpoint
     checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
-                       "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_w",
+                       "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_in",
                        "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b", "changed",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
@@ -272,6 +286,7 @@ class CoupledStokes:
         self.rows = rows
         self.m = int(opts.stokes_restart)
         self.exact = opts.stokes_norm == "criterion"
+        self.extrapolated = opts.stokes_initial_guess == "extrapolated"
         self.tol_u = float(opts.stokes_momentum_tolerance)
         self.tol_rho = float(opts.stokes_density_tolerance)
         self.max_iterations = int(opts.stokes_max_iterations)
@@ -300,8 +315,13 @@ class CoupledStokes:
         self.q = ti.Vector.field(3, ti.f64, shape=shape)
         self.eacc = ti.Vector.field(3, ti.f64, shape=shape)
         self.surf_rhs = ti.Vector.field(3, ti.f64, shape=shape)
-        self.Binv_w = ti.Matrix.field(3, 3, ti.f64, shape=shape)
         self.affine = ti.field(ti.i32, shape=())  # 1: walls' velocities in the strain too
+        # Vectors that only their own row reads (w, the Krylov basis and its images T v, the
+        # inner solve's x, r, z and q, Weiler's blocks) are stored by row (slot), the rest by
+        # particle (neighbours read z, the inner solve's p, the state). A print's melt is a
+        # few thousand rows among ~100,000 particles sorted by cell: by particle index every
+        # vector operation gathered scattered cache lines (benchy's window, one solve: 166
+        # against 143 ms, Gram-Schmidt 0.60 against 0.37 ms a pass; 2026-12-04)
         vec4 = lambda: ti.Vector.field(4, ti.f64, shape=cap)  # noqa: E731
         self.X, self.rhs, self.w, self.z = vec4(), vec4(), vec4(), vec4()
         self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap))
@@ -313,6 +333,9 @@ class CoupledStokes:
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
+        # Weiler's diagonal blocks, the inner solve's preconditioner, by row (not particle):
+        # read once a row per inner iteration, they stream in order
+        self.Binv_in = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         # the criterion's norm: T w and every basis vector's image T v_l, and the density
         # criterion's weight c in T (see "Norm")
         self.tw = ti.Vector.field(4, ti.f64, shape=cap if self.exact else 1)
@@ -339,6 +362,14 @@ class CoupledStokes:
         self.serial_rows = int(opts.serial_rows if opts.serial_rows is not None
                                else 16384 // max(1, live.get("threads", 1)))
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
+        # v_n-1 for the extrapolated initial guess (see "Initial guess"): a state field, so
+        # that it moves with the particles' sort and is checkpointed; none without it
+        self.previous_dt = 0.0  # s; 0: no history (first step, after an idle span)
+        if self.extrapolated:
+            self.v_prev = state.add("previous_velocity", 3)
+            state.on_append.append(self._appended)
+        else:
+            self.v_prev = ti.Vector.field(3, float, shape=1)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
         # GMRES keeps them, the preconditioner being an inner iterative solve) and the inner
@@ -674,7 +705,7 @@ class CoupledStokes:
                 e = self.eacc[i]
                 for d in ti.static(range(3)):
                     acc[d] += e[d]
-            out[i] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
+            out[slot] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
                                 zi[2] - dt * acc[2] + dt * acc[5],
                                 self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])])
 
@@ -684,7 +715,7 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            vi = v[i]
+            vi = v[slot]
             u = self.Binv[i] @ ti.Vector([vi[0], vi[1], vi[2]])
             self.z[i] = ti.Vector([u[0], u[1], u[2], self.sigma[i] * vi[3]])
 
@@ -764,17 +795,17 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            v = self.basis[j, i]
+            v = self.basis[j, slot]
             self.kpart[i] = -self.sigma[i] * v[3]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, self.kpart[i]])
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            v = self.basis[j, i]
+            v = self.basis[j, slot]
             r = ti.Vector([v[0], v[1], v[2]]) - self._dt_pressure(i)
-            self.cg_x[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            self.cg_r[i] = r
-            self.cg_z[i] = self._inner_binv(i) @ r
+            self.cg_x[slot] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.cg_r[slot] = r
+            self.cg_z[slot] = self.Binv_in[slot] @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         self._inner_blocks(n, 0, S)
         ti.loop_config(serialize=True)
@@ -788,14 +819,6 @@ class CoupledStokes:
         return self.cg_done[None]
 
     @ti.func
-    def _inner_binv(self, i):
-        """The inner solve's preconditioner: the diagonal blocks of Weiler's operator, A~."""
-        m = self.Binv[i]
-        if ti.static(self.traction):
-            m = self.Binv_w[i]
-        return m
-
-    @ti.func
     def _inner_blocks(self, n, which, S: ti.template()):
         """r . cg_z (which 0) or p . q (which 1): block by block, then the blocks in order."""
         nb = (n + self.block - 1) // self.block
@@ -805,9 +828,9 @@ class CoupledStokes:
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
                 i = self.rows.index[slot]
                 if which == 0:
-                    s += self.cg_r[i].dot(self.cg_z[i])
+                    s += self.cg_r[slot].dot(self.cg_z[slot])
                 else:
-                    s += self.cg_p[i].dot(self.cg_q[i])
+                    s += self.cg_p[i].dot(self.cg_q[slot])
             self.cg_part[which, b] = s
         return self._in_order(self.cg_part, which, nb)
 
@@ -836,14 +859,14 @@ class CoupledStokes:
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
-                    self.cg_p[i] = self.cg_z[i] + self.cg_beta[None] * self.cg_p[i]
+                    self.cg_p[i] = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
             ti.loop_config(serialize=S)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     self.grid.for_each_listed(i, self._inner_task, acc)
-                    self.cg_q[i] = self.cg_p[i] - self.dt[None] * acc
+                    self.cg_q[slot] = self.cg_p[i] - self.dt[None] * acc
             self._inner_blocks(n, 1, S)
             ti.loop_config(serialize=True)
             for _ in range(1):
@@ -858,10 +881,10 @@ class CoupledStokes:
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     alpha = self.alpha[None]
-                    self.cg_x[i] += alpha * self.cg_p[i]
-                    r = self.cg_r[i] - alpha * self.cg_q[i]
-                    self.cg_r[i] = r
-                    self.cg_z[i] = self._inner_binv(i) @ r
+                    self.cg_x[slot] += alpha * self.cg_p[i]
+                    r = self.cg_r[slot] - alpha * self.cg_q[slot]
+                    self.cg_r[slot] = r
+                    self.cg_z[slot] = self.Binv_in[slot] @ r
             self._inner_blocks(n, 0, S)
             ti.loop_config(serialize=True)
             for _ in range(1):
@@ -880,10 +903,10 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            x = self.cg_x[i]
+            x = self.cg_x[slot]
             z = ti.Vector([x[0], x[1], x[2], self.kpart[i]])
             self.z[i] = z
-            self.Zb[j, i] = z
+            self.Zb[j, slot] = z
         self._apply(n, self.w, S)
 
     def _block_triangular(self, n: int, j: int, S: bool) -> int:
@@ -957,11 +980,11 @@ class CoupledStokes:
             acc = ti.Vector.zero(ti.f64, 13)
             self.grid.for_each_listed(i, self._setup_task, acc)
             weiler = (ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)).inverse()
+            self.Binv_in[slot] = weiler
             v = ti.cast(self.state.v[i], ti.f64) + dt * g
             mom = v
             if ti.static(self.traction):
                 mom += dt * self.surf_rhs[i]
-                self.Binv_w[i] = weiler
                 e = ti.Vector.zero(ti.f64, 12)
                 self.grid.for_each_listed(i, self._energy_block_task, e)
                 a = -ti.Vector([e[0], e[1], e[2]])
@@ -1003,13 +1026,13 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[i][3]])
+            self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[slot][3]])
 
     @ti.func
-    def _velocity_error(self, i):
+    def _velocity_error(self, i, slot):
         """w_u - dt G(-sigma w_k) at row i (after _pressure_error): the velocity error the
         residual stands for; B^-1 of it is the stop's measure."""
-        wi = self.w[i]
+        wi = self.w[slot]
         return ti.Vector([wi[0], wi[1], wi[2]]) - self._dt_pressure(i)
 
     @ti.kernel
@@ -1020,8 +1043,8 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            e = self.Binv[i] @ self._velocity_error(i)
-            self.tw[i] = ti.Vector([e[0], e[1], e[2], self.crho[None] * self.w[i][3]])
+            e = self.Binv[i] @ self._velocity_error(i, slot)
+            self.tw[slot] = ti.Vector([e[0], e[1], e[2], self.crho[None] * self.w[slot][3]])
         return self._w_sum(n, False, S)
 
     @ti.kernel
@@ -1041,12 +1064,12 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            self.w[i] = self.rhs[i] - self.w[i]
+            self.w[slot] = self.rhs[i] - self.w[slot]
         self._pressure_error(n, S)
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            self.werr[i] = self._velocity_error(i)
+            self.werr[i] = self._velocity_error(i, slot)
         return self._norms(n, S)
 
     @ti.func
@@ -1059,7 +1082,7 @@ class CoupledStokes:
             sm = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
                 i = self.rows.index[slot]
-                wi = self.w[i]
+                wi = self.w[slot]
                 ri = self.rhs[i]
                 zw = self.Binv[i] @ self.werr[i]
                 zr = self.Binv[i] @ ti.Vector([ri[0], ri[1], ri[2]])
@@ -1084,8 +1107,7 @@ class CoupledStokes:
         """w = A M^-1 v_j."""
         ti.loop_config(serialize=S)
         for slot in range(n):
-            i = self.rows.index[slot]
-            self.w[i] = self.basis[j, i]
+            self.w[slot] = self.basis[j, slot]
         self._precondition(n, self.w, S)
         self._apply(n, self.w, S)
 
@@ -1098,11 +1120,10 @@ class CoupledStokes:
         for l, b in ti.ndrange(j + 1, nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
-                i = self.rows.index[slot]
                 if ti.static(self.exact):
-                    s += self.tb[l, i].dot(self.tw[i])
+                    s += self.tb[l, slot].dot(self.tw[slot])
                 else:
-                    s += self.basis[l, i].dot(self.w[i])
+                    s += self.basis[l, slot].dot(self.w[slot])
             self.part[l, b] = s
         ti.loop_config(serialize=True)
         for l in range(j + 1):
@@ -1119,37 +1140,34 @@ class CoupledStokes:
         """w -= sum_l coef_l v_l."""
         ti.loop_config(serialize=S)
         for slot in range(n):
-            i = self.rows.index[slot]
-            acc = self.w[i]
+            acc = self.w[slot]
             for l in range(j + 1):
-                acc -= self.coef[l] * self.basis[l, i]
-            self.w[i] = acc
+                acc -= self.coef[l] * self.basis[l, slot]
+            self.w[slot] = acc
             if ti.static(self.exact):  # T is linear: T w follows w without another T
-                t = self.tw[i]
+                t = self.tw[slot]
                 for l in range(j + 1):
-                    t -= self.coef[l] * self.tb[l, i]
-                self.tw[i] = t
+                    t -= self.coef[l] * self.tb[l, slot]
+                self.tw[slot] = t
 
     @ti.kernel
     def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64, S: ti.template()):
         """v_j = w / norm."""
         ti.loop_config(serialize=S)
         for slot in range(n):
-            i = self.rows.index[slot]
-            self.basis[j, i] = self.w[i] / norm
+            self.basis[j, slot] = self.w[slot] / norm
             if ti.static(self.exact):
-                self.tb[j, i] = self.tw[i] / norm
+                self.tb[j, slot] = self.tw[slot] / norm
 
     @ti.func
     def _combine(self, n, k, vectors: ti.template(), S: ti.template()):
         """w = sum_l coef_l vectors_l."""
         ti.loop_config(serialize=S)
         for slot in range(n):
-            i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 4)
             for l in range(k):
-                acc += self.coef[l] * vectors[l, i]
-            self.w[i] = acc
+                acc += self.coef[l] * vectors[l, slot]
+            self.w[slot] = acc
 
     @ti.kernel
     def _update(self, n: ti.i32, k: ti.i32, flexible: ti.template(), S: ti.template()):
@@ -1163,17 +1181,39 @@ class CoupledStokes:
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
-            self.X[i] += self.w[i] if ti.static(flexible) else self.z[i]
+            self.X[i] += self.w[slot] if ti.static(flexible) else self.z[i]
 
     @ti.kernel
-    def _warm(self, n: ti.i32, kappa: ti.template(), from_state: ti.i32, S: ti.template()):
-        """X0: the melt's present velocity (v_n) and, where given, last step's k."""
+    def _warm(self, n: ti.i32, n_all: ti.i32, kappa: ti.template(), from_state: ti.i32,
+              ratio: ti.f64, S: ti.template()):
+        """X0: the melt's velocity extrapolated from its last two steps, v_n + ratio (v_n -
+        v_n-1) (ratio = dt / dt_n-1; 0: v_n), and, where given, last step's k; then v_n
+        becomes every particle's previous velocity."""
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
             v = ti.cast(self.state.v[i], ti.f64)
+            if ti.static(self.extrapolated):
+                v += ratio * (v - ti.cast(self.v_prev[i], ti.f64))
             k = ti.select(from_state == 1, ti.cast(kappa[i], ti.f64), 0.0)
             self.X[i] = ti.Vector([v[0], v[1], v[2], k])
+        if ti.static(self.extrapolated):
+            for i in range(n_all):
+                self.v_prev[i] = self.state.v[i]
+
+    @ti.kernel
+    def _start_history(self, lo: ti.i32, hi: ti.i32):
+        for i in range(lo, hi):
+            self.v_prev[i] = self.state.v[i]
+
+    def _appended(self, sl: slice, phase: int) -> None:
+        """Particles entering the domain start their history at their own velocity."""
+        self._start_history(sl.start, sl.stop)
+
+    def forget_history(self) -> None:
+        """The melt's velocities were set from outside the solve (an idle span zeroed them):
+        the next solve starts from them, not from an extrapolation."""
+        self.previous_dt = 0.0
 
     @ti.kernel
     def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
@@ -1203,17 +1243,23 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ public
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
-              warm_pressure: bool = True, compressible: bool = True) -> StokesResult:
+              warm_pressure: bool = True, compressible: bool = True,
+              extrapolate: bool = True) -> StokesResult:
         """Replace the melt's velocities by the step's solution and write k into ``kappa``
         (a per-particle field: k = p / rho0, m^2/s^2). The caller has sorted the particles,
         built the neighbour lists, updated ``rows`` and set the densities. compressible=False:
-        incompressible rows whatever the option (a quasi-static solve: a steady state)."""
+        incompressible rows whatever the option (a quasi-static solve: a steady state).
+        extrapolate=False: start from v_n, and void the history (a solve that is no step)."""
         n = self.rows.n
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
         inner = 0
         S = self.serial(n)
         self._setup(n, float(dt), *map(float, gravity_m_s2), kappa, S)
-        self._warm(n, kappa, 1 if warm_pressure else 0, S)
+        ratio = 0.0
+        if self.extrapolated and extrapolate and self.previous_dt > 0.0:
+            ratio = float(dt) / self.previous_dt
+        self._warm(n, self.state.n, kappa, 1 if warm_pressure else 0, ratio, S)
+        self.previous_dt = float(dt) if extrapolate else 0.0
         free = self._find_free(n, S)
         iterations = 0
         m = self.m
@@ -1294,13 +1340,12 @@ class CoupledStokes:
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
-                i = self.rows.index[slot]
                 if ti.static(continuity):
-                    s += ti.abs(self.w[i][3])
+                    s += ti.abs(self.w[slot][3])
                 elif ti.static(self.exact):
-                    s += self.tw[i].norm_sqr()
+                    s += self.tw[slot].norm_sqr()
                 else:
-                    s += self.w[i].norm_sqr()
+                    s += self.w[slot].norm_sqr()
             self.part[0, b] = s
         return self._in_order(self.part, 0, nb)
 

@@ -23,6 +23,10 @@ class InletSpec:
     selection: object
     z_offset_m: float = 0.0
     tip_outer_diameter_m: float | None = None
+    #: the nozzle's flank above its flat tip: its angle from the face's plane (deg; None: the
+    #: flat tip alone) and how far above the face it reaches (m)
+    flank_angle_deg: float | None = None
+    body_height_m: float = 0.0
 
 
 @dataclass
@@ -63,6 +67,10 @@ class ScenePlan:
     #: column): the implicit solver's CFL steps then number travel / (CFL x spacing), however
     #: fast the motion starts, beside the steps the longest step needs
     travel_m: float | None = None
+    #: the walls' fastest speed (m/s) at an array of times (s), for scenes whose walls move
+    #: on a known schedule (a print: the nozzle plus the melt sliding down its bore): the
+    #: step estimate follows it through the run instead of taking its peak throughout
+    wall_speed_m_s: object = None
     #: heat's diffusion limit for scenes that know it up front (s)
     thermal_dt_s: float | None = None
     #: print scenes: the scales of the creeping-flow numbers (viscosity scaling)

@@ -45,3 +45,31 @@ def annulus_lattice(inner_radius_m: float, outer_radius_m: float, spacing_m: flo
     pts = np.stack([X.ravel(), Y.ravel()], axis=1)
     r = np.linalg.norm(pts, axis=1)
     return pts[(r >= inner_radius_m) & (r < outer_radius_m)]
+
+
+def nozzle_tip_lattice(bore_radius_m: float, tip_radius_m: float, spacing_m: float,
+                       face_slices: int, flank_angle_deg: float | None = None,
+                       body_height_m: float = 0.0) -> np.ndarray:
+    """(k, 3) offsets from the tip face's centre of the nozzle's solid: the flat face, an
+    annulus from the bore to the tip radius, ``face_slices`` thick; above it, where a flank
+    angle is given, the nozzle's cone up to ``body_height_m`` over the face. The flank rises
+    at that angle from the face's plane, outward from the face's outer edge at the slab's
+    top; the cone is a shell as thick, along its normal, as the slab (at least the kernel's
+    support, so that melt on it sees a full wall)."""
+    out = []
+    ring = annulus_lattice(bore_radius_m, tip_radius_m, spacing_m)
+    for k in range(face_slices):
+        out.append(np.hstack([ring, np.full((len(ring), 1), (k + 0.5) * spacing_m)]))
+    if flank_angle_deg is not None:
+        top = face_slices * spacing_m
+        angle = math.radians(flank_angle_deg)
+        run_per_rise = math.cos(angle) / math.sin(angle)
+        across = top / math.sin(angle)  # the shell's horizontal width
+        k = face_slices
+        while (k + 0.5) * spacing_m < body_height_m:
+            z = (k + 0.5) * spacing_m
+            outer = tip_radius_m + (z - top) * run_per_rise
+            pts = annulus_lattice(max(bore_radius_m, outer - across), outer, spacing_m)
+            out.append(np.hstack([pts, np.full((len(pts), 1), z)]))
+            k += 1
+    return np.concatenate(out) if out else np.zeros((0, 3))

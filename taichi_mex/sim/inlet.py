@@ -15,7 +15,7 @@ import bisect
 import numpy as np
 
 from taichi_mex.backend import real_np_dtype, ti
-from taichi_mex.sim.boundaries import annulus_lattice, disc_lattice
+from taichi_mex.sim.boundaries import disc_lattice, nozzle_tip_lattice
 from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
@@ -23,7 +23,8 @@ from taichi_mex.core.state import FLUID, INLET, NOZZLE
 class NozzleInlet:
     def __init__(self, state, selection, spacing_m: float, support_radius_m: float,
                  particle_mass_kg: float, z_offset_m: float = 0.0,
-                 tip_outer_diameter_m: float | None = None):
+                 tip_outer_diameter_m: float | None = None, flank_angle_deg: float | None = None,
+                 body_height_m: float = 0.0):
         self.state = state
         self.selection = selection
         self.traj = selection.trajectory
@@ -47,6 +48,8 @@ class NozzleInlet:
         self.nozzle_particles = 0
         self._tip_outer_r = None if tip_outer_diameter_m is None else 0.5 * tip_outer_diameter_m
         self._bore_r = bore_r
+        self._flank = flank_angle_deg
+        self._body_height = float(body_height_m)
 
     # --------------------------------------------------------------- geometry
     def nozzle_state(self, time_s: float):
@@ -66,20 +69,20 @@ class NozzleInlet:
         """Inlet column plus nozzle tip particles present at any time."""
         tip = 0
         if self._tip_outer_r is not None:
-            tip = len(annulus_lattice(self._bore_r, self._tip_outer_r, self.dx)) * self.column_slices
+            tip = len(self._tip_offsets())
         return self.n_slice * (self.column_slices + 1) + tip
 
+    def _tip_offsets(self) -> np.ndarray:
+        return nozzle_tip_lattice(self._bore_r, self._tip_outer_r, self.dx, self.column_slices,
+                                  self._flank, self._body_height)
+
     def build_tip(self, time_s: float) -> None:
-        """Add the nozzle's solid tip: a flat annulus face and bore wall, as thick as the column."""
+        """Add the nozzle's solid tip: a flat annulus face and bore wall, as thick as the
+        column, and its flank above it where one is given (boundaries.nozzle_tip_lattice)."""
         if self._tip_outer_r is None:
             return
-        ring = annulus_lattice(self._bore_r, self._tip_outer_r, self.dx)
         pos, vel, _, _ = self.nozzle_state(time_s)
-        offsets = []
-        for k in range(self.column_slices):
-            z = np.full((len(ring), 1), (k + 0.5) * self.dx)
-            offsets.append(np.hstack([ring, z]))
-        offsets = np.concatenate(offsets)
+        offsets = self._tip_offsets()
         sl = self.state.append(pos + offsets, NOZZLE, self.particle_mass, vel, density=0.0,
                                time_s=time_s)
         self._set_offsets(sl.start, offsets.astype(np.float64), -1)

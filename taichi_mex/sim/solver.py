@@ -411,7 +411,8 @@ class DFSPHSolver:
         self.dfsph.prepare(n)
         self.fluid.update()
         self.dfsph.rows.update()
-        res = self.stokes.solve(dt, self.dfsph.kappa, self.gravity, compressible=False)
+        res = self.stokes.solve(dt, self.dfsph.kappa, self.gravity, compressible=False,
+                                extrapolate=False)
         return replace(res, wall_s=time.perf_counter() - t0)
 
     def _record_peak(self, compression: float) -> None:
