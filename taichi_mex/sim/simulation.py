@@ -222,7 +222,7 @@ class Simulation:
         dt *= run.dt_factor  # the run multiplies every limit by it
         steps = int(np.ceil((span - idle) / dt)) if dt > 0 else 0
         if self.plan.wall_speed_m_s is not None and run.scheme == "dfsph" and span > idle:
-            steps = self._steps_along_the_walls(limits, span, idle)
+            steps = self._steps_along_the_walls(limits)
             dt = (span - idle) / max(steps, 1)
         if self.plan.travel_m is not None and run.scheme == "dfsph":
             # the CFL step follows the melt's speed, which decays as a slump creeps: count the
@@ -246,14 +246,14 @@ class Simulation:
                 "wall_time_estimate_s": self._wall_estimate(initial, inflow, steps),
                 "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
 
-    def _steps_along_the_walls(self, limits: dict, span: float, idle: float) -> int:
+    def _steps_along_the_walls(self, limits: dict) -> int:
         """Steps of the solver's CFL rule on the walls' speed as it goes (a print: the nozzle
         speeds up, slows down and travels; its peak held throughout counted benchy's 4 x 4 mm
         window at 14,090 steps, which took 7,864-8,452), summed over the spans the run does
-        not skip, on samples 0.1 ms apart (at most 2 million)."""
+        not skip, on samples 0.1 ms apart (at most a million: coarser over a long print)."""
         run = self.run_opts
         t0, t1 = self.plan.t_start_s, self.plan.t_end_s
-        n = int(min(max(np.ceil((t1 - t0) / 1e-4), 1000), 2_000_000))
+        n = int(min(max(np.ceil((t1 - t0) / 1e-4), 1000), 1_000_000))
         h = (t1 - t0) / n
         times = t0 + (np.arange(n) + 0.5) * h
         keep = np.ones(n, dtype=bool)
@@ -262,7 +262,7 @@ class Simulation:
                 keep &= ~((times >= a) & (times < b))
         speed = np.maximum(self.plan.wall_speed_m_s(times[keep]), 1e-9)
         cfl = run.dfsph.cfl * 0.4 * run.spacing_m / speed
-        dt = np.minimum(cfl, min(v for k, v in limits.items() if k != "cfl")) * run.dt_factor
+        dt = np.minimum(cfl, limits.get("max", np.inf)) * run.dt_factor
         return int(np.ceil(np.sum(h / dt)))
 
     def _wall_estimate(self, initial: int, inflow: int, steps: float) -> float | None:
