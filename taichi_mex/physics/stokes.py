@@ -363,13 +363,13 @@ class CoupledStokes:
                                else 16384 // max(1, live.get("threads", 1)))
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         # v_n-1 for the extrapolated initial guess (see "Initial guess"): a state field, so
-        # that it moves with the particles' sort and is checkpointed; none without it
+        # that it moves with the particles' sort and is checkpointed; none without it (every
+        # kernel reads it only under ti.static(self.extrapolated))
         self.previous_dt = 0.0  # s; 0: no history (first step, after an idle span)
+        self.v_prev = None
         if self.extrapolated:
             self.v_prev = state.add("previous_velocity", 3)
             state.on_append.append(self._appended)
-        else:
-            self.v_prev = ti.Vector.field(3, float, shape=1)
         self.force_flag = ti.field(ti.i32, shape=cap)  # walls wall_force sums over
         # block-triangular preconditioner: each basis vector's preconditioned image (flexible
         # GMRES keeps them, the preconditioner being an inner iterative solve) and the inner

@@ -15,7 +15,7 @@ from taichi_mex import bundled
 from taichi_mex.errors import UserInputError
 from taichi_mex.options import Either, NONE, NonNegative, OneOf, Positive, Range, Text, opt
 from taichi_mex.scenes.registry import SceneEntry, register
-from taichi_mex.sim.boundaries import disc_lattice, plate_lattice
+from taichi_mex.sim.boundaries import column_slices, disc_lattice, plate_lattice
 from taichi_mex.toolpath.plan import make_plan
 from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 from taichi_mex.core.state import PLATE, SOLID
@@ -167,7 +167,7 @@ class PrintScene:
         hi_xy = ext[1, :2] + reach
         times = np.linspace(t0, min(t1, traj.print_time_s), 400)
         z_nozzle = traj.sample(times, clip=True).position_mm[:, 2] * 1e-3 + zoff
-        column = (int(np.ceil(H / dx)) + 2) * dx
+        column = (column_slices(H, dx) + 1) * dx  # the bore's column and a slice to spare
         z_top = float(z_nozzle.max()) + column + 2 * H + plough
         z_bottom = -(run.wall_layers() + 1) * dx - H
         lo = np.array([lo_xy[0] - H, lo_xy[1] - H, z_bottom])

@@ -47,6 +47,12 @@ def annulus_lattice(inner_radius_m: float, outer_radius_m: float, spacing_m: flo
     return pts[(r >= inner_radius_m) & (r < outer_radius_m)]
 
 
+def column_slices(support_radius_m: float, spacing_m: float) -> int:
+    """Slices of the bore's inlet column, and the tip slab's thickness in slices: a kernel's
+    support and one more, so that melt leaving the bore sees a full column above it."""
+    return int(math.ceil(support_radius_m / spacing_m)) + 1
+
+
 def nozzle_tip_lattice(bore_radius_m: float, tip_radius_m: float, spacing_m: float,
                        face_slices: int, flank_angle_deg: float | None = None,
                        body_height_m: float = 0.0) -> np.ndarray:

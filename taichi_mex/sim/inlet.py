@@ -15,7 +15,7 @@ import bisect
 import numpy as np
 
 from taichi_mex.backend import real_np_dtype, ti
-from taichi_mex.sim.boundaries import disc_lattice, nozzle_tip_lattice
+from taichi_mex.sim.boundaries import column_slices, disc_lattice, nozzle_tip_lattice
 from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
@@ -34,7 +34,7 @@ class NozzleInlet:
         self.slice_xy = disc_lattice(bore_r, self.dx)
         self.n_slice = len(self.slice_xy)
         self.area_lattice_m2 = self.n_slice * self.dx**2
-        self.column_slices = int(np.ceil(support_radius_m / self.dx)) + 1
+        self.column_slices = column_slices(support_radius_m, self.dx)
         self.z_offset_m = float(z_offset_m)
         self.slices_spawned = 0
         self.slice_of = state.add("inlet_slice", dtype=ti.i32)

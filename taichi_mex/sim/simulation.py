@@ -187,11 +187,12 @@ class Simulation:
             inlet_extra = 4 * int(np.pi * (0.5e-3 * self.plan.inlet.selection.trajectory.printer.nozzle_diameter_mm / dx + 1) ** 2) * int(factor + 2)
             spec = self.plan.inlet
             if spec.tip_outer_diameter_m:
-                from taichi_mex.sim.boundaries import nozzle_tip_lattice
+                from taichi_mex.sim.boundaries import column_slices, nozzle_tip_lattice
 
+                # the tip the inlet will build (NozzleInlet._tip_offsets)
                 bore_r = 0.5e-3 * spec.selection.trajectory.printer.nozzle_diameter_mm
                 inlet_extra += len(nozzle_tip_lattice(
-                    bore_r, 0.5 * spec.tip_outer_diameter_m, dx, int(np.ceil(H / dx)) + 1,
+                    bore_r, 0.5 * spec.tip_outer_diameter_m, dx, column_slices(H, dx),
                     spec.flank_angle_deg, spec.body_height_m))
         capacity = int(1.02 * (initial + inflow + inlet_extra)) + 64
         ext = self.plan.domain_hi_m - self.plan.domain_lo_m
