@@ -568,6 +568,15 @@ class DFSPHOptions:
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
         flag_help="coupled solve: Weiler's pair sum at the free surface, which carries no viscous "
         "flux, in place of the traction-free condition (a print's default)")
+    stokes_viscous_operator: str = opt(
+        "weiler2018", help="coupled solve without the surface traction: the viscous pair term. "
+        "'weiler2018' (Weiler et al. 2018): each link resists the velocity difference along "
+        "itself. 'morris1997' (Morris, Fox & Zhu 1997): the whole difference, stiff across "
+        "the link too, but div(mu grad u), not div(2 mu D), where a support is cut. "
+        "'espanol_revenga2003': half of each, div(mu (grad u + grad u^T)). Measured: the "
+        "bundled bead (standard) 0.499 / 0.635 / 0.546 mm wide, the slicer's 0.45; benchy's "
+        "window flung no melt under Morris's (physics/stokes.py, \"Operators\")",
+        check=OneOf("weiler2018", "morris1997", "espanol_revenga2003"))
     stokes_zero_energy_control: float = opt(
         1.0, help="coupled solve with the surface traction: weight of Ganzenmueller's (2015) "
         "hourglass term, Weiler's pair dissipation of what the corrected velocity gradient "
@@ -721,6 +730,13 @@ class RunOptions:
 
     def validate(self) -> None:
         validate_fields(self, "run.")
+        d = self.dfsph
+        if d.stokes_viscous_operator != "weiler2018" and d.stokes_surface_traction:
+            raise UserInputError(
+                f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "
+                "pair sum's viscous term, which the surface traction's strain-energy form "
+                "replaces: turn run.dfsph.stokes_surface_traction off (--no-surface-traction), "
+                "or keep 'weiler2018'.")
 
 
 PAPER_PRESET = {

@@ -249,19 +249,67 @@ def test_the_validation_scenes_refuse_the_split_solve_up_front():
             Simulation.from_spec(spec)
 
 
-def test_bore_flow_profile_is_poiseuilles():
+@pytest.mark.parametrize("operator", ["weiler2018", "morris1997", "espanol_revenga2003"])
+def test_bore_flow_profile_is_poiseuilles(operator):
     """Melt falling through the 0.4 mm bore, 4 particles per radius: the ring-averaged axial
     velocity of the middle third within the issue's 3 % of u_max of Hagen-Poiseuille's
     with Weiler's viscous sum, the operator prints run with (measured 1.7 %; no free surface
-    in that third). The scene's default, the strain-energy form, slips at this resolution
-    (6.4 %; 2.7 % at 8 per radius, validation/bore_flow)."""
+    in that third), with Morris's Laplacian (1.1 %) and with their even blend (1.3 %). The
+    scene's default, the strain-energy form, slips at this resolution (6.4 %; 2.7 % at 8 per
+    radius, validation/bore_flow)."""
     spec = RunSpec.create("bore-flow", changes={"spacing_mm": 0.05, "run.progress": False,
-                                                "run.dfsph.stokes_surface_traction": False})
+                                                "run.dfsph.stokes_surface_traction": False,
+                                                "run.dfsph.stokes_viscous_operator": operator})
     sim = Simulation.from_spec(spec)
     sim.build()
     out = sim.scene.analyse(sim)
     assert out["stokes_converged"]
     assert out["profile_error_max"] < 0.03
+
+
+def test_morris_links_hold_a_row_in_every_direction():
+    """Weiler's link resists the velocity difference along itself only, so a row's diagonal
+    block B = 1 + dt sum c F x x^T is as stiff across a plane of links as its inertia (the
+    particle benchy's window flung: smallest eigenvalue 3.98, the melt's median 1e5).
+    Morris's link resists the whole difference: every block is a multiple of the identity,
+    its links' sum, whatever their directions; the even blend's smallest eigenvalue is at
+    least half of that sum. The film's solution keeps its mirror symmetry and its
+    independence of mu with Morris's term."""
+    spec = {"run.dfsph.stokes_surface_traction": False}
+    res = {}
+    for op in ("weiler2018", "morris1997", "espanol_revenga2003"):
+        for mu in (1000.0, 12.7) if op == "morris1997" else (1000.0,):
+            sim = _film(mu, **spec, **TIGHT, **{"run.dfsph.stokes_viscous_operator": op})
+            res[op, mu] = _solve(sim)
+            assert res[op, mu][0].converged
+            if mu == 1000.0:
+                st = sim.solver.stokes
+                n = st.rows.n
+                B = np.linalg.inv(st.Binv_in.to_numpy()[:n])
+                eig = np.linalg.eigvalsh(0.5 * (B + np.transpose(B, (0, 2, 1))))
+                spread = eig[:, 2] / eig[:, 0]
+                if op == "morris1997":
+                    assert np.abs(B - B[:, :1, :1] * np.eye(3)).max() < 1e-9 * B[:, 0, 0].max()
+                    assert spread.max() < 1.0 + 1e-9
+                    morris_floor = eig[:, 0] - 1.0  # dt times the links' sum
+                elif op == "espanol_revenga2003":
+                    assert (eig[:, 0] - 1.0 >= 0.5 * morris_floor * (1.0 - 1e-9)).all()
+                else:  # the rows at the film's rim: links on one side only
+                    assert spread.max() > 2.0
+    _, x, va, _ = res["morris1997", 1000.0]
+    _, _, vb, _ = res["morris1997", 12.7]
+    assert np.abs(va - vb).max() < 0.01 * SPEED
+    cells = np.round(2 * x / sim.run_opts.spacing_m).astype(int)
+    key = {tuple(k): i for i, k in enumerate(cells)}
+    mirror = np.array([key[(-a, b, c)] for a, b, c in cells])
+    assert np.abs(va[:, 0] + va[mirror, 0]).max() < 1e-3 * SPEED
+    assert np.abs(va[:, 1:] - va[mirror, 1:]).max() < 1e-3 * SPEED
+
+
+def test_morris_operator_is_refused_with_the_surface_traction():
+    from taichi_mex.errors import UserInputError
+    with pytest.raises(UserInputError, match="--no-surface-traction"):
+        _film(1000.0, **{"run.dfsph.stokes_viscous_operator": "morris1997"})
 
 
 def test_a_compression_no_flow_relieves_settles_on_a_pressure():

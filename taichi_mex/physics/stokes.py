@@ -18,6 +18,32 @@ Operators (V: the rest volume, F(r) x = grad W):
   with c_ij = d mu_ij (m_j / rho_j) / rho_i / (r^2 + 0.01 H^2) and d calibrated on the lattice
   (physics/viscosity_weiler2018.py); with the free surface's traction, the strain-energy form
   below, and Weiler's operator only inside the preconditioner;
+* or (option stokes_viscous_operator) with Morris, Fox & Zhu's (1997) Laplacian in it,
+  L(u)_i = sum_j c'_ij F r^2 (u_i - u_j), the whole velocity difference rather than its
+  projection on the link (physics/viscosity_morris1997.py): 'morris1997' that alone,
+  'espanol_revenga2003' half of each. In the continuum Weiler's sum is lap u + 2 grad div u
+  and Morris's lap u, so the even blend is lap u + grad div u = div(grad u + grad u^T), the
+  pair form of 2 mu D that Espanol & Revenga (Phys. Rev. E 67, 2003) write with a bulk
+  viscosity of 2 mu / 3; inside a divergence-free melt all three are mu lap u. Why try it:
+  Weiler's link is stiff along itself only, so a row's diagonal block 1 + dt sum c F x x^T
+  is as weak across a plane of links as the row's inertia; the pressure's push on such a row
+  grows linearly with its links' tilt out of that plane and the viscous hold quadratically,
+  and a particle at the melt's edge whose few links lie nearly in one plane is flung
+  (benchy's window: the particle at the tip's rim, smallest eigenvalue of its block 3.98
+  against the melt's median 1.1e5, 1.44 m/s). With Morris's term every block has its links'
+  sum as a floor in every direction (half of it in the blend). Measured side by side
+  (2026-12-05, 2 cores), Weiler / blend / Morris: the bundled bead 0.471 / 0.491 / 0.560 mm
+  wide at draft and 0.499 / 0.546 / 0.635 mm at standard (0.599 at fine for Morris), 0.195 /
+  0.185 / 0.165 mm high at draft (the slicer's 0.45 x 0.2 mm); the squeeze film without the
+  traction at 4 layers and R / h = 5 0.82 / 0.68 / 0.38 of Stefan's force; the bore's profile
+  1.7 / 1.3 / 1.1 % of u_max off Poiseuille's at 4 per radius. The isotropic term under-
+  resists the lubrication flow under a wall (under Morris's the melt below the film's disc
+  moved at 0.82 of its speed, under Weiler's at 0.94) and the bead spreads: the shapes rank
+  Weiler's first. Benchy's 4 x 4 mm window (validation/windows) ran to its end under Morris's
+  with no melt faster than 0.092 m/s (Weiler's: 0.77 m/s and 627 steps over 4x the nozzle's
+  speed), in 7,130 steps at 17.5 / 47 GMRES / inner iterations a step against 8,217 at 17.5 /
+  101; under the blend it stalled at t = 189.94 s on a fragment of 21 rows. Weiler's stays the
+  default; the others are measured alternatives, not a fix;
 * G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
   other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
   D(u)_i = sum_j V (u_i - u_j) . grad W_ij + sum_b V (u_i - u_b) . grad W_ib.
@@ -225,8 +251,13 @@ import numpy as np
 
 from taichi_mex.backend import current, ti
 from taichi_mex.core.state import FLUID, INLET, SOLID
+from taichi_mex.physics.viscosity_morris1997 import lattice_laplacian_factor as morris_lattice_factor
 
 log = logging.getLogger(__name__)
+
+#: the coupled solve's viscous pair terms: the weight of Morris's isotropic term in each, the
+#: rest Weiler's projected one (see "Operators")
+VISCOUS_OPERATORS = {"weiler2018": 0.0, "morris1997": 1.0, "espanol_revenga2003": 0.5}
 
 
 @dataclass
@@ -291,6 +322,13 @@ class CoupledStokes:
         self.tol_rho = float(opts.stokes_density_tolerance)
         self.max_iterations = int(opts.stokes_max_iterations)
         self.traction = bool(opts.stokes_surface_traction)
+        # the viscous pair term (see "Operators"): the share of Morris's Laplacian of the whole
+        # velocity difference in it, the rest Weiler's link-projected one
+        self.w_iso = VISCOUS_OPERATORS[opts.stokes_viscous_operator]
+        self.isotropic = self.w_iso > 0.0
+        self.morris_ratio = 0.0
+        if self.isotropic:
+            self.morris_ratio = (1.0 / morris_lattice_factor(kernel, spacing_m, volume_m3)) / viscous.d
         self.hourglass = float(opts.stokes_zero_energy_control)
         self.summation_source = opts.stokes_density_source == "summation"
         # 1 / c^2 = rho0 / K (s^2/m^2): see "Compressibility"; a field, so that a
@@ -394,6 +432,15 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ operator pieces
     @ti.func
+    def _pair(self, cF, du, xij):
+        """The viscous pair term for the velocity difference du: Weiler's cF (du . x) x, with
+        Morris's (the lattice's ratio) cF r^2 du blended in at the weight w_iso."""
+        out = cF * du.dot(xij) * xij
+        if ti.static(self.isotropic):
+            out = (1.0 - self.w_iso) * out + (self.w_iso * self.morris_ratio) * cF * xij.norm_sqr() * du
+        return out
+
+    @ti.func
     def _setup_task(self, i, slot, j, xij, acc: ti.template()):
         """Cache c F; accumulate the 3x3 diagonal block (acc[0:9]) and the walls' constant
         terms of the right-hand side: momentum (acc[9:12]) and continuity (acc[12])."""
@@ -405,14 +452,19 @@ class CoupledStokes:
             if self.state.phase[j] != FLUID:
                 vb = ti.cast(self.state.v[j], ti.f64)
                 gb = 2.0 * vb if self.shepard[j] > 0.0 else vb  # Adami's ghost, less u~_b
-                w = cF * gb.dot(xij) * xij
+                w = self._pair(cF, gb, xij)
                 for d in ti.static(range(3)):
                     acc[9 + d] += w[d]
                 acc[12] += vb.dot(self._corrected(i, self.V * F * xij))
         self.cF[i, slot] = cF
         for a in ti.static(range(3)):
-            for b in ti.static(range(3)):
-                acc[3 * a + b] += cF * xij[a] * xij[b]
+            if ti.static(self.isotropic):
+                acc[4 * a] += (self.w_iso * self.morris_ratio) * cF * r2
+                for b in ti.static(range(3)):
+                    acc[3 * a + b] += (1.0 - self.w_iso) * cF * xij[a] * xij[b]
+            else:
+                for b in ti.static(range(3)):
+                    acc[3 * a + b] += cF * xij[a] * xij[b]
 
     @ti.func
     def _energy_block_task(self, k, slot, j, xkj, acc: ti.template()):
@@ -662,7 +714,7 @@ class CoupledStokes:
         if self.state.phase[j] == FLUID:
             zj = self.z[j]
             uj = ti.Vector([zj[0], zj[1], zj[2]])
-            l = cF * (ui - uj).dot(xij) * xij
+            l = self._pair(cF, ui - uj, xij)
             gi = self._corrected(i, gV)
             g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
@@ -674,7 +726,7 @@ class CoupledStokes:
             ug = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             if self.shepard[j] > 0.0:
                 ug = self.ghost[j] / self.shepard[j]
-            l = cF * (ui + ug).dot(xij) * xij  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
+            l = self._pair(cF, ui + ug, xij)  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
             gi = self._corrected(i, gV)
             g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
@@ -782,10 +834,10 @@ class CoupledStokes:
         cF = self.cF[i, slot]
         pi = self.cg_p[i]
         if self.state.phase[j] == FLUID:
-            acc += cF * (pi - self.cg_p[j]).dot(xij) * xij
+            acc += self._pair(cF, pi - self.cg_p[j], xij)
         else:
             f = 2.0 if self.shepard[j] > 0.0 else 1.0
-            acc += f * cF * pi.dot(xij) * xij
+            acc += self._pair(f * cF, pi, xij)
 
     @ti.kernel
     def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template()) -> ti.i32:
@@ -1546,5 +1598,5 @@ class CoupledStokes:
             if self.shepard[j] > 0.0:
                 ub = 2.0 * vb - self.ghost[j] / self.shepard[j]
             if ti.static(not self.traction):
-                acc += self.cF[i, slot] * (ui - ub).dot(xij) * xij
+                acc += self._pair(self.cF[i, slot], ui - ub, xij)
             acc -= x[3] * self._corrected(i, self.V * ti.cast(self.K.F(xij.norm()), ti.f64) * ti.cast(xij, ti.f64))
