@@ -731,6 +731,12 @@ class RunOptions:
     def validate(self) -> None:
         validate_fields(self, "run.")
         d = self.dfsph
+        if d.stokes_viscous_operator != "weiler2018" and (self.scheme != "dfsph"
+                                                          or d.creeping_solve != "coupled"):
+            raise UserInputError(
+                f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "
+                "coupled solve's viscous term; this run does not use the coupled solve: add "
+                "--creeping-solve coupled (and --scheme dfsph), or keep 'weiler2018'.")
         if d.stokes_viscous_operator != "weiler2018" and d.stokes_surface_traction:
             raise UserInputError(
                 f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "

@@ -25,7 +25,7 @@ Operators (V: the rest volume, F(r) x = grad W):
   and Morris's lap u, so the even blend is lap u + grad div u = div(grad u + grad u^T), the
   pair form of 2 mu D that Espanol & Revenga (Phys. Rev. E 67, 2003) write with a bulk
   viscosity of 2 mu / 3; inside a divergence-free melt all three are mu lap u. Why try it:
-  Weiler's link is stiff along itself only, so a row's diagonal block 1 + dt sum c F x x^T
+  Weiler's link is stiff along itself only, so a row's diagonal block 1 + dt sum c |F| x x^T
   is as weak across a plane of links as the row's inertia; the pressure's push on such a row
   grows linearly with its links' tilt out of that plane and the viscous hold quadratically,
   and a particle at the melt's edge whose few links lie nearly in one plane is flung
@@ -226,6 +226,9 @@ fragment's translation and rotation to the ones that leave its rows no net force
 net moment: a coarse correction on the rigid modes, as deflation removes known near-null
 modes from a Krylov solve (Nicolaides, SIAM J. Numer. Anal. 24, 1987). Their deformation is
 stiff, and the tolerance sees it.
+With Morris's term in L (stokes_viscous_operator) a pair's viscous force is not along the
+pair: a rigid rotation is no longer near-null (it dissipates) and the rows' moments do not
+cancel, so only the translation is set; GMRES meets the rotation like any stiff mode.
 
 Initial guess: the solve starts from the melt's present velocity v_n, or (option
 stokes_initial_guess = 'extrapolated') from each melt particle's velocity extrapolated from
@@ -326,6 +329,9 @@ class CoupledStokes:
         # velocity difference in it, the rest Weiler's link-projected one
         self.w_iso = VISCOUS_OPERATORS[opts.stokes_viscous_operator]
         self.isotropic = self.w_iso > 0.0
+        if self.isotropic and self.traction:
+            raise ValueError("the pair sum's viscous term is not used with the surface traction "
+                             "(RunOptions.validate refuses the combination)")
         self.morris_ratio = 0.0
         if self.isotropic:
             self.morris_ratio = (1.0 / morris_lattice_factor(kernel, spacing_m, volume_m3)) / viscous.d
@@ -1523,8 +1529,10 @@ class CoupledStokes:
             if self.anchored[i] == 0:
                 r = self.comp[i]
                 a = self.cl_a[r] / self.cl_n[r]
-                b = self.cl_Jinv[r] @ self.cl_b[r]
-                du = a + b.cross(ti.cast(self.state.x[i], ti.f64) - self.cl_c[r])
+                du = a
+                if ti.static(not self.isotropic):  # see "Free fragments": central pairs only
+                    b = self.cl_Jinv[r] @ self.cl_b[r]
+                    du += b.cross(ti.cast(self.state.x[i], ti.f64) - self.cl_c[r])
                 self.X[i] += ti.Vector([du[0], du[1], du[2], 0.0])
 
     def _find_free(self, n: int, S: bool) -> int:

@@ -17,7 +17,8 @@ dissipates (angular momentum is not conserved, Morris et al. say so), where Weil
 
 As with Weiler's constant, the continuum's 2 (the mean of mu_i + mu_j) is calibrated on the
 lattice so that a quadratic shear profile diffuses at the set viscosity (cubic spline at
-H = 2 dx: the lattice sum is 0.496 of the continuum's, Weiler's 0.698). The coupled solve
+H = 2 dx: the lattice sum is 0.496, 0.99 of the continuum's 1/2, where Weiler's reaches 0.70
+of its own). The coupled solve
 uses it alone or blended with Weiler's (physics/stokes.py, "Operators": measured there, and
 why neither replaces Weiler's).
 """
