@@ -25,18 +25,11 @@ why neither replaces Weiler's).
 
 import numpy as np
 
+from taichi_mex.physics.viscosity_weiler2018 import lattice_links
+
 
 def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> float:
     """What sum_j V (u_i - u_j) F r^2 / (r^2 + 0.01 H^2) gives for u = z^2/2 on the cubic
     lattice, F = (dW/dr) / r; the continuum's value is 1/2."""
-    m = int(np.ceil(kernel.H / spacing_m)) + 1
-    r = np.arange(-m, m + 1) * spacing_m
-    X, Y, Z = np.meshgrid(r, r, r, indexing="ij")
-    P = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
-    d = np.linalg.norm(P, axis=1)
-    ok = (d > 0) & (d < kernel.H)
-    P, d = P[ok], d[ok]
-    eps = 1e-6 * spacing_m
-    F = (kernel.W_np(d + eps) - kernel.W_np(d - eps)) / (2 * eps) / d
-    u_diff = -0.5 * P[:, 2] ** 2  # u_i - u_j with x_i = 0
+    _, d, F, u_diff = lattice_links(kernel, spacing_m)
     return float(np.sum(volume_m3 * u_diff * F * d**2 / (d**2 + 0.01 * kernel.H**2)))

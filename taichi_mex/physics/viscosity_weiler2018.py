@@ -27,8 +27,9 @@ from taichi_mex.core.pcg import PCG, Stop
 from taichi_mex.core.state import FLUID
 
 
-def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> float:
-    """What the d = 10 operator gives for u = z^2/2 (exact: 1) on the cubic lattice."""
+def lattice_links(kernel, spacing_m: float):
+    """A cubic lattice's links from the origin within the support: offsets P (n, 3), their
+    lengths d and F = (dW/dr) / r, and u_i - u_j for u = z^2/2 (the calibration's field)."""
     m = int(np.ceil(kernel.H / spacing_m)) + 1
     r = np.arange(-m, m + 1) * spacing_m
     X, Y, Z = np.meshgrid(r, r, r, indexing="ij")
@@ -37,8 +38,13 @@ def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> floa
     ok = (d > 0) & (d < kernel.H)
     P, d = P[ok], d[ok]
     eps = 1e-6 * spacing_m
-    F = (kernel.W_np(d + eps) - kernel.W_np(d - eps)) / (2 * eps) / d  # (dW/dr) / r
-    u_diff = -0.5 * P[:, 2] ** 2  # u_i - u_j with x_i = 0
+    F = (kernel.W_np(d + eps) - kernel.W_np(d - eps)) / (2 * eps) / d
+    return P, d, F, -0.5 * P[:, 2] ** 2
+
+
+def lattice_laplacian_factor(kernel, spacing_m: float, volume_m3: float) -> float:
+    """What the d = 10 operator gives for u = z^2/2 (exact: 1) on the cubic lattice."""
+    P, d, F, u_diff = lattice_links(kernel, spacing_m)
     return float(10.0 * np.sum(volume_m3 * u_diff * P[:, 0] ** 2 * F / (d**2 + 0.01 * kernel.H**2)))
 
 
