@@ -576,7 +576,7 @@ class DFSPHOptions:
         "'espanol_revenga2003': half of each, div(mu (grad u + grad u^T)). Measured: the "
         "bundled bead (standard) 0.499 / 0.635 / 0.546 mm wide, the slicer's 0.45; benchy's "
         "window flung no melt under Morris's (physics/stokes.py, \"Operators\")",
-        check=OneOf("weiler2018", "morris1997", "espanol_revenga2003"))
+        check=OneOf("weiler2018", "morris1997", "espanol_revenga2003"), flag="--viscous-operator")
     stokes_zero_energy_control: float = opt(
         1.0, help="coupled solve with the surface traction: weight of Ganzenmueller's (2015) "
         "hourglass term, Weiler's pair dissipation of what the corrected velocity gradient "
