@@ -33,7 +33,8 @@ Operators (V: the rest volume, F(r) x = grad W):
   against the melt's median 1.1e5, 1.44 m/s). With Morris's term every block has its links'
   sum as a floor in every direction (half of it in the blend). Measured side by side
   (2026-12-05, 2 cores), Weiler / blend / Morris: the bundled bead 0.471 / 0.491 / 0.560 mm
-  wide at draft and 0.499 / 0.546 / 0.635 mm at standard (0.599 at fine for Morris), 0.195 /
+  wide at draft, 0.499 / 0.546 / 0.635 mm at standard and 0.4995 / 0.571 / 0.599 mm at fine
+  (Weiler's settles 11 % over the slicer's width, the blend's grows away from it), 0.195 /
   0.185 / 0.165 mm high at draft (the slicer's 0.45 x 0.2 mm); the squeeze film without the
   traction at 4 layers and R / h = 5 0.82 / 0.68 / 0.38 of Stefan's force; the bore's profile
   1.7 / 1.3 / 1.1 % of u_max off Poiseuille's at 4 per radius. The isotropic term under-
