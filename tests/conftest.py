@@ -26,7 +26,7 @@ def write_gcode(tmp_path):
 #:   python -m pytest -m validation                        # validation tier
 VALIDATION_FILES = {"test_dfsph.py", "test_edac.py", "test_thermal.py", "test_tension.py", "test_outputs.py",
                     "test_print.py", "test_stability.py", "test_dam_break.py", "test_pairing.py",
-                    "test_idle.py", "test_stokes.py", "test_extension.py"}
+                    "test_idle.py", "test_stokes.py", "test_extension.py", "test_die_swell.py"}
 
 
 def pytest_collection_modifyitems(config, items):

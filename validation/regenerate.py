@@ -564,6 +564,32 @@ CASES = {
             if len(r.get("mid_pressure_pa", [])) > 1 else ""),
            ("GMRES per step", num("stokes_iterations_per_step")),
            ("particles lost", num("particles_lost"))]),
+    "die_swell": Case(
+        "PLA (1000 Pa s) pushed out of the 0.4 mm nozzle bore into free space, no gravity: the "
+        "free surface iterated to the streamline from the die's lip (one coupled solve per "
+        "geometry), its swell against Nickell, Tanner & Caswell's 1.13",
+        [(f"{label}, {dx} mm ({0.2 / dx:.0f} per radius)",
+          scene("die-swell", "--spacing-mm", dx, *args))
+         for label, dx, args in (
+             ("traction", 0.05, ["--surface-traction"]),
+             ("traction", 0.0333, ["--surface-traction"]),
+             ("traction", 0.025, ["--surface-traction"]),
+             ("Weiler's sum (prints)", 0.05, []),
+             ("Weiler's sum (prints)", 0.0333, []),
+             ("Weiler's sum, relaxed 0.5", 0.05, ["--relaxation", 0.5]),
+             ("Morris", 0.05, ["--viscous-operator", "morris1997"]),
+             ("even blend", 0.05, ["--viscous-operator", "espanol_revenga2003"]))],
+        [("traction, 0.05 mm", scene("die-swell", "--surface-traction"))],
+        [("particles", num("particles_active")),
+         ("swell: streamline / lattice / continuity", lambda r: (
+             f"{r['swell']:.3f} / {r['swell_lattice']:.3f} / {r['swell_kinematic']:.3f}")
+          if r.get("swell") is not None else ""),
+         ("streamline swell / 1.13", lambda r: f"{r['swell_error']:+.1%}"
+          if r.get("swell_error") is not None else ""),
+         ("streamline swell by iteration", lambda r: ", ".join(
+             f"{x:.3f}" for x in r.get("swell_history") or [])),
+         ("GMRES per solve", lambda r: ", ".join(str(k) for k in r.get("stokes_iterations_each") or [])),
+         ("converged", lambda r: str(r.get("stokes_converged", "")))]),
     "mesostructure": Case(
         "pairing and voids in the single bead's section (standard spacing, whole bead)",
         [(f"standard, {v}", bead("--resolution", "standard", "--viscosity-scale", v))

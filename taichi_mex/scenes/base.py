@@ -78,6 +78,10 @@ class ScenePlan:
     #: spans (t_from, t_to) in s in which nothing the scene prescribes touches the domain (the
     #: nozzle is outside it): a creeping melt may skip them (RunOptions.skip_idle)
     idle_windows: list = field(default_factory=list)
+    #: a body force on the melt above a plane, ((ax, ay, az) in m/s^2, the plane's height z
+    #: in m): a scene that drives its melt through a die by a pressure drop gives the drop as
+    #: this force, which the pressure absorbs (the coupled solve reads it)
+    drive: tuple | None = None
     #: what the scene reports about itself (copied into the summary; nothing reads it back)
     info: dict = field(default_factory=dict)
 

@@ -397,6 +397,14 @@ class Simulation:
                                           self.material.density_kg_m3, run, hooks,
                                           self.plan.speed_scale_m_s, self.plan.max_dt_s,
                                           material=self.material)
+        if self.plan.drive is not None:
+            if getattr(self.solver, "stokes", None) is None:
+                raise UserInputError(f"The {self.plan.name} scene drives its melt by a body force "
+                                     "that only the coupled solve reads: run it with "
+                                     "--creeping-solve coupled.")
+            (ax, ay, az), z_m = self.plan.drive
+            self.solver.stokes.drive = (float(ax), float(ay), float(az),
+                                        float(z_m - self.state.origin_m[2]))
         # DFSPH calibrates the particle volume so a rest lattice has rho = rho0 exactly
         self.mass = getattr(self.solver, "particle_mass", self.material.density_kg_m3 * dx**3)
         self.inlet = None

@@ -1,0 +1,189 @@
+"""Extrudate swell: creeping melt pushed out of a long round die into free space. A Newtonian
+jet leaving a tube at zero Reynolds number, without gravity or surface tension, swells to
+D_jet / D = 1.13 within about a diameter of the exit (Nickell, Tanner & Caswell, J. Fluid
+Mech. 65, 1974; Tanner, Engineering Rheology, 2nd ed., 2000, Sec. 9.6): the Poiseuille
+profile relaxes to a plug, the slow melt at the wall speeds up, the fast core slows down, and
+the free surface moves out until it is a streamline of the plug. It tests what a strand needs
+where it leaves the nozzle and no other case checks: a traction-free surface whose shape is
+set by a velocity profile rearranging under it.
+
+The die is the nozzle's bore (radius 0.2 mm, no-slip wall of the run's wall layers), exit
+plane at z = 0, melt column open at the top; the jet hangs below, open at its end. The melt is
+driven by a body force a = 8 nu U / R^2 on the melt above the exit plane: Poiseuille's profile
+of mean speed U in the die. The force is -grad(phi) with phi = -a z above the plane and 0
+below, continuous, so the pressure absorbs it (p + rho phi): in the jet, where phi = 0, that
+is the pressure, and the problem is the pressure-driven die's.
+
+The steady free surface is found as Nickell, Tanner & Caswell found theirs: solve the Stokes
+flow in a trial geometry (one coupled solve, nothing moved), move the jet's surface to the
+streamline that leaves the die's lip, R(z) = R + integral of u_r / u_z along the surface,
+rebuild the jet on that profile and repeat until the swell stops changing. (Stepping the
+melt out of the die in time instead stalled the coupled solve within two radii of travel at
+whatever drove it, a piston's corner or a draining column top, before the jet settled.)
+The swell is the converged streamline's far radius over R, with two checks: the jet's
+cross-section in particles over the die's (the lattice's own reading of the geometry, in
+ring steps), and sqrt(U_die / u_jet) from the mean axial speeds (continuity; equal to the swell
+when the surface is a streamline and nothing crosses it).
+"""
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from taichi_mex.core.state import FLUID, NOZZLE
+from taichi_mex.options import Positive, Range, opt
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
+                                    require_coupled_solve)
+from taichi_mex.scenes.registry import SceneEntry, register
+
+#: Nickell, Tanner & Caswell (1974): a Newtonian creeping jet from a long round tube
+NEWTONIAN_SWELL = 1.13
+
+
+class DieSwellScene:
+    name = "die-swell"
+
+    def __init__(self, radius_mm: float = 0.2, die_radii: float = 8.0, jet_radii: float = 10.0,
+                 iterations: int = 6, tolerance: float = 0.002, relaxation: float = 1.0):
+        self.options = DieSwellOptions(radius_mm, die_radii, jet_radii, iterations, tolerance,
+                                       relaxation)
+        self.relaxation = float(relaxation)
+        self.R = radius_mm * 1e-3
+        self.L_die = die_radii * self.R
+        self.L_jet = jet_radii * self.R
+        self.iterations = int(iterations)
+        self.tolerance = float(tolerance)
+        #: the jet's radius against depth below the exit (m -> m); None: straight, R
+        self.jet_profile = None
+        self.U = 0.01  # m/s: the die's mean speed; a creeping flow's shape does not depend on it
+
+    def plan(self, run, material) -> ScenePlan:
+        require_coupled_solve(run, "die swell")
+        dx = run.spacing_m
+        layers = run.wall_layers()
+        outer = self.R + layers * dx
+        box = lattice_block([-outer, -outer, 0.0], [outer, outer, self.L_die], dx)
+        r = np.hypot(box[:, 0], box[:, 1])
+        die = box[r < self.R]
+        wall = box[(r >= self.R) & (r < outer)]
+        wide = 2.0 * self.R
+        jet = lattice_block([-wide, -wide, -self.L_jet], [wide, wide, 0.0], dx)
+        rj = self.jet_profile(-jet[:, 2]) if self.jet_profile is not None else self.R
+        jet = jet[np.hypot(jet[:, 0], jet[:, 1]) < rj]
+        self.dx = dx
+        # the die's melt radius from its cross-section (the wall is the lattice outside the
+        # circle), which Poiseuille's mean speed follows
+        self.layer = int(np.sum(np.abs(die[:, 2] - die[0, 2]) < 0.5 * dx))
+        radius = math.sqrt(self.layer * dx * dx / math.pi)
+        nu = material.viscosity_pa_s / material.density_kg_m3
+        pad = (layers + 3) * dx
+        side = max(outer, wide) + pad
+        return ScenePlan(
+            name=self.name,
+            domain_lo_m=np.array([-side, -side, -self.L_jet - pad]),
+            domain_hi_m=np.array([side, side, self.L_die + pad]),
+            t_start_s=0.0, t_end_s=0.0,
+            blocks=[ParticleBlock(np.concatenate([jet, die]), FLUID), ParticleBlock(wall, NOZZLE)],
+            section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
+            speed_scale_m_s=2.0 * self.U,
+            drive=((0.0, 0.0, -8.0 * nu * self.U / radius**2), 0.0),
+            info={"radius_m": self.R, "die_length_m": self.L_die, "jet_length_m": self.L_jet},
+        )
+
+    # ------------------------------------------------------------ measurement
+    def _measure(self, sim) -> dict:
+        """One coupled solve in the present geometry; the surface streamline from the lip."""
+        res = sim.solver.quasi_static()
+        x = sim.state.numpy("position", FLUID)
+        v = sim.state.numpy("velocity", FLUID)
+        R, dx = self.R, self.dx
+        r = np.hypot(x[:, 0], x[:, 1])
+        z = x[:, 2]
+        ur = (x[:, 0] * v[:, 0] + x[:, 1] * v[:, 1]) / np.maximum(r, 1e-30)
+        uz = -v[:, 2]
+        in_die = (z > 0.25 * self.L_die) & (z < 0.75 * self.L_die)
+        depth, slope, count, speed = [], [], [], []
+        for k in range(int(round(self.L_jet / dx))):
+            s = (z < -k * dx) & (z >= -(k + 1) * dx)
+            if not s.any():
+                continue
+            # the surface: the slab's outermost ring of particles
+            surface = s & (r > r[s].max() - 0.3 * dx)
+            depth.append((k + 0.5) * dx)
+            slope.append(float(np.mean(ur[surface]) / np.mean(uz[surface])))
+            count.append(int(s.sum()))
+            speed.append(float(np.mean(uz[s])))
+        depth = np.array(depth)
+        rise = np.cumsum(np.array(slope) * dx)
+        far = (depth > 0.4 * self.L_jet) & (depth < 0.6 * self.L_jet)
+        u_die = float(np.mean(uz[in_die]))
+        u_jet = float(np.mean(np.array(speed)[far]))
+        return {"streamline": 1.0 + float(np.mean(rise[far])) / R,
+                "lattice": math.sqrt(float(np.mean(np.array(count)[far])) / self.layer),
+                "kinematic": math.sqrt(u_die / u_jet), "u_die": u_die, "u_jet": u_jet,
+                "depth": depth, "rise": rise, "iterations": res.iterations,
+                "converged": bool(res.converged)}
+
+    def analyse(self, sim) -> dict:
+        """Nickell, Tanner & Caswell's iteration: solve, move the surface to the lip's
+        streamline, rebuild, until the swell changes by less than the tolerance."""
+        from taichi_mex.sim.simulation import Simulation
+
+        history = []
+        m = self._measure(sim)
+        history.append(m)
+        current = lambda d: np.full_like(d, self.R)  # noqa: E731
+        for _ in range(self.iterations - 1):
+            depth, rise, prev = m["depth"], m["rise"], current
+            # under-relaxed: the surface moves part of the way to the streamline
+            w = self.relaxation
+            current = (lambda d, depth=depth, rise=rise, prev=prev, w=w:
+                       (1.0 - w) * prev(d) + w * (self.R + np.interp(d, depth, rise)))
+            self.jet_profile = current
+            nxt = Simulation(self, sim.run_opts, sim.material)
+            nxt.build()
+            m = self._measure(nxt)
+            history.append(m)
+            if abs(m["streamline"] - history[-2]["streamline"]) < self.tolerance:
+                break
+        self.jet_profile = None
+        last = history[-1]
+        return {"swell": last["streamline"], "swell_lattice": last["lattice"],
+                "swell_kinematic": last["kinematic"], "swell_reference": NEWTONIAN_SWELL,
+                "swell_error": last["streamline"] / NEWTONIAN_SWELL - 1.0,
+                "swell_history": [h["streamline"] for h in history],
+                "swell_kinematic_history": [h["kinematic"] for h in history],
+                "swell_lattice_history": [h["lattice"] for h in history],
+                "surface_depth_m": last["depth"].tolist(),
+                "surface_radius_ratio": (1.0 + last["rise"] / self.R).tolist(),
+                "die_mean_speed_m_s": last["u_die"], "jet_speed_m_s": last["u_jet"],
+                "geometry_iterations": len(history),
+                "stokes_iterations_each": [h["iterations"] for h in history],
+                "stokes_converged": all(h["converged"] for h in history),
+                "radius_m": self.R}
+
+
+@dataclass
+class DieSwellOptions:
+    radius_mm: float = opt(0.2, help="die (bore) radius R (mm)", check=Positive(), flag="--radius-mm")
+    die_radii: float = opt(8.0, help="length of the melt column in the die, in radii (-)",
+                           check=Range(4.0, 100.0))
+    jet_radii: float = opt(10.0, help="length of the jet below the exit, in radii (-)",
+                           check=Range(4.0, 100.0))
+    iterations: int = opt(6, help="most solves of the free-surface iteration (-)",
+                          check=Range(1, 100, integer=True), flag="--surface-iterations")
+    tolerance: float = opt(0.002, help="the iteration stops when the swell changes by less "
+                           "than this (-)", check=Positive(), flag="--swell-tolerance")
+    relaxation: float = opt(1.0, help="share of the way to the streamline the surface moves "
+                            "each iteration (-; 1: all of it)", check=Range(0.0, 1.0, lo_open=True),
+                            flag="--relaxation")
+
+
+def _defaults(_options) -> dict:
+    # the free surface as prints run it: Weiler's pair sum, no surface traction
+    return coupled_pla_defaults(0.05, {"stokes_surface_traction": False}, gravity_m_s2=0.0)
+
+
+register(SceneEntry("die-swell", "creeping melt pushed out of a round die (extrudate swell)",
+                    DieSwellOptions, lambda o: DieSwellScene(**asdict(o)), _defaults))
