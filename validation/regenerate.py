@@ -580,14 +580,16 @@ CASES = {
              ("Morris", 0.05, ["--viscous-operator", "morris1997"]),
              ("even blend", 0.05, ["--viscous-operator", "espanol_revenga2003"]))],
         [("traction, 0.05 mm", scene("die-swell", "--surface-traction"))],
-        [("particles", num("particles_active")),
-         ("swell: streamline / lattice / continuity", lambda r: (
+        [("swell: streamline / lattice / continuity", lambda r: (
              f"{r['swell']:.3f} / {r['swell_lattice']:.3f} / {r['swell_kinematic']:.3f}")
           if r.get("swell") is not None else ""),
          ("streamline swell / 1.13", lambda r: f"{r['swell_error']:+.1%}"
           if r.get("swell_error") is not None else ""),
          ("streamline swell by iteration", lambda r: ", ".join(
              f"{x:.3f}" for x in r.get("swell_history") or [])),
+         ("surface a streamline (residual)", lambda r: (
+             f"{'yes' if r['surface_converged'] else 'no'} ({r['surface_residual']:+.3f})")
+          if r.get("surface_residual") is not None else ""),
          ("GMRES per solve", lambda r: ", ".join(str(k) for k in r.get("stokes_iterations_each") or [])),
          ("converged", lambda r: str(r.get("stokes_converged", "")))]),
     "mesostructure": Case(

@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from taichi_mex.core.state import FLUID, NOZZLE
+from taichi_mex.errors import SimulationDiverged, UserInputError
 from taichi_mex.options import Positive, Range, opt
 from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
                                     require_coupled_solve)
@@ -67,10 +68,15 @@ class DieSwellScene:
         r = np.hypot(box[:, 0], box[:, 1])
         die = box[r < self.R]
         wall = box[(r >= self.R) & (r < outer)]
-        wide = 2.0 * self.R
-        jet = lattice_block([-wide, -wide, -self.L_jet], [wide, wide, 0.0], dx)
+        # the jet on the die's lattice (same offsets across, layers at -(k + 1/2) dx), wide
+        # enough for a swell of 2
+        wide = outer + math.ceil((2.0 * self.R - outer) / dx) * dx if 2.0 * self.R > outer else outer
+        layers_down = math.ceil(self.L_jet / dx - 1e-9)
+        jet = lattice_block([-wide, -wide, -layers_down * dx], [wide, wide, 0.0], dx)
         rj = self.jet_profile(-jet[:, 2]) if self.jet_profile is not None else self.R
         jet = jet[np.hypot(jet[:, 0], jet[:, 1]) < rj]
+        # capacity for the jet's later geometries (analyse rebuilds it in place): a swell of 2
+        room = int(3 * np.sum(np.hypot(jet[:, 0], jet[:, 1]) < self.R))
         self.dx = dx
         # the die's melt radius from its cross-section (the wall is the lattice outside the
         # circle), which Poiseuille's mean speed follows
@@ -87,6 +93,7 @@ class DieSwellScene:
             blocks=[ParticleBlock(np.concatenate([jet, die]), FLUID), ParticleBlock(wall, NOZZLE)],
             section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
             speed_scale_m_s=2.0 * self.U,
+            inflow_particles=room,
             drive=((0.0, 0.0, -8.0 * nu * self.U / radius**2), 0.0),
             info={"radius_m": self.R, "die_length_m": self.L_die, "jet_length_m": self.L_jet},
         )
@@ -107,54 +114,74 @@ class DieSwellScene:
         for k in range(int(round(self.L_jet / dx))):
             s = (z < -k * dx) & (z >= -(k + 1) * dx)
             if not s.any():
-                continue
+                break
             # the surface: the slab's outermost ring of particles
             surface = s & (r > r[s].max() - 0.3 * dx)
-            depth.append((k + 0.5) * dx)
+            depth.append((k + 1) * dx)  # the slab's bottom: the rise below sums its slope
             slope.append(float(np.mean(ur[surface]) / np.mean(uz[surface])))
             count.append(int(s.sum()))
             speed.append(float(np.mean(uz[s])))
-        depth = np.array(depth)
-        rise = np.cumsum(np.array(slope) * dx)
-        far = (depth > 0.4 * self.L_jet) & (depth < 0.6 * self.L_jet)
+        # from the lip (depth 0, rise 0) down
+        depth = np.concatenate([[0.0], depth])
+        rise = np.concatenate([[0.0], np.cumsum(np.array(slope) * dx)])
+        mid = depth[1:] - 0.5 * dx
+        far = (mid > 4.0 * R) & (mid < 6.0 * R)
+        if not far.any():
+            raise UserInputError("The die-swell jet is too short to read its swell 4-6 radii "
+                                 "below the exit: raise jet_radii.")
         u_die = float(np.mean(uz[in_die]))
         u_jet = float(np.mean(np.array(speed)[far]))
-        return {"streamline": 1.0 + float(np.mean(rise[far])) / R,
+        return {"streamline": 1.0 + float(np.mean(rise[1:][far])) / R,
                 "lattice": math.sqrt(float(np.mean(np.array(count)[far])) / self.layer),
                 "kinematic": math.sqrt(u_die / u_jet), "u_die": u_die, "u_jet": u_jet,
                 "depth": depth, "rise": rise, "iterations": res.iterations,
                 "converged": bool(res.converged)}
 
-    def analyse(self, sim) -> dict:
-        """Nickell, Tanner & Caswell's iteration: solve, move the surface to the lip's
-        streamline, rebuild, until the swell changes by less than the tolerance."""
-        from taichi_mex.sim.simulation import Simulation
+    def _rebuild(self, sim) -> None:
+        """The particles of the present jet_profile, in place of the old ones."""
+        plan = self.plan(sim.run_opts, sim.material)
+        st = sim.state
+        if plan.initial_count() > st.capacity:
+            raise SimulationDiverged("The die-swell iteration's jet outgrew its capacity (a "
+                                     "swell over 2): the surface iteration is not converging.")
+        st.n = 0
+        for block in plan.blocks:
+            st.append(block.position_m, block.phase, sim.mass, block.velocity_m_s,
+                      density=sim.material.density_kg_m3)
+        sim.grid.stale = True
 
+    def analyse(self, sim) -> dict:
+        """Nickell, Tanner & Caswell's iteration: solve, move the surface (part of the way,
+        by the relaxation) to the lip's streamline, rebuild, until the surface is a streamline
+        of its own flow: its far radius and the streamline's within the tolerance."""
         history = []
-        m = self._measure(sim)
-        history.append(m)
+        geometry = [1.0]  # the far swell of each geometry solved (the start is straight)
         current = lambda d: np.full_like(d, self.R)  # noqa: E731
-        for _ in range(self.iterations - 1):
-            depth, rise, prev = m["depth"], m["rise"], current
-            # under-relaxed: the surface moves part of the way to the streamline
-            w = self.relaxation
-            current = (lambda d, depth=depth, rise=rise, prev=prev, w=w:
-                       (1.0 - w) * prev(d) + w * (self.R + np.interp(d, depth, rise)))
-            self.jet_profile = current
-            nxt = Simulation(self, sim.run_opts, sim.material)
-            nxt.build()
-            m = self._measure(nxt)
-            history.append(m)
-            if abs(m["streamline"] - history[-2]["streamline"]) < self.tolerance:
-                break
-        self.jet_profile = None
+        try:
+            for k in range(self.iterations):
+                if k:
+                    self.jet_profile = current
+                    self._rebuild(sim)
+                m = self._measure(sim)
+                history.append(m)
+                if abs(m["streamline"] - geometry[-1]) < self.tolerance or k == self.iterations - 1:
+                    break
+                depth, rise, prev, w = m["depth"], m["rise"], current, self.relaxation
+                current = (lambda d, depth=depth, rise=rise, prev=prev, w=w:
+                           (1.0 - w) * prev(d) + w * (self.R + np.interp(d, depth, rise)))
+                geometry.append(float(np.mean(current(np.linspace(4.0, 6.0, 21) * self.R))) / self.R)
+        finally:
+            self.jet_profile = None
         last = history[-1]
+        residual = last["streamline"] - geometry[len(history) - 1]
         return {"swell": last["streamline"], "swell_lattice": last["lattice"],
                 "swell_kinematic": last["kinematic"], "swell_reference": NEWTONIAN_SWELL,
                 "swell_error": last["streamline"] / NEWTONIAN_SWELL - 1.0,
                 "swell_history": [h["streamline"] for h in history],
                 "swell_kinematic_history": [h["kinematic"] for h in history],
                 "swell_lattice_history": [h["lattice"] for h in history],
+                "surface_residual": residual,
+                "surface_converged": bool(abs(residual) < self.tolerance),
                 "surface_depth_m": last["depth"].tolist(),
                 "surface_radius_ratio": (1.0 + last["rise"] / self.R).tolist(),
                 "die_mean_speed_m_s": last["u_die"], "jet_speed_m_s": last["u_jet"],
@@ -169,8 +196,8 @@ class DieSwellOptions:
     radius_mm: float = opt(0.2, help="die (bore) radius R (mm)", check=Positive(), flag="--radius-mm")
     die_radii: float = opt(8.0, help="length of the melt column in the die, in radii (-)",
                            check=Range(4.0, 100.0))
-    jet_radii: float = opt(10.0, help="length of the jet below the exit, in radii (-)",
-                           check=Range(4.0, 100.0))
+    jet_radii: float = opt(10.0, help="length of the jet below the exit, in radii (-; the "
+                           "swell is read 4-6 radii down)", check=Range(8.0, 100.0))
     iterations: int = opt(6, help="most solves of the free-surface iteration (-)",
                           check=Range(1, 100, integer=True), flag="--surface-iterations")
     tolerance: float = opt(0.002, help="the iteration stops when the swell changes by less "
