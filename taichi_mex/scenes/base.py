@@ -119,6 +119,21 @@ def lattice_block(lo_m, hi_m, spacing_m: float) -> np.ndarray:
     return np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
 
 
+def bore(radius_m: float, length_m: float, spacing_m: float, layers: int):
+    """A vertical bore on the cell-centred lattice from z = 0 to length_m: (melt, wall), the
+    lattice inside the circle of radius_m and the lattice ring of ``layers`` spacings outside
+    it (the nozzle's bore, a die), and the melt's radius from its cross-section,
+    sqrt(N dx^2 / pi) with N the particles of one layer (the wall's staircase moves it off
+    radius_m)."""
+    outer = radius_m + layers * spacing_m
+    box = lattice_block([-outer, -outer, 0.0], [outer, outer, length_m], spacing_m)
+    r = np.hypot(box[:, 0], box[:, 1])
+    melt = box[r < radius_m]
+    wall = box[(r >= radius_m) & (r < outer)]
+    layer = int(np.sum(np.abs(melt[:, 2] - melt[0, 2]) < 0.5 * spacing_m))
+    return melt, wall, float(np.sqrt(layer * spacing_m * spacing_m / np.pi))
+
+
 def coupled_pla_defaults(spacing_mm: float, dfsph: dict | None = None, **run) -> dict:
     """Defaults of a scene measured by the coupled solve: PLA melt at 1000 Pa s (Newtonian),
     DFSPH with the coupled creeping solve at ``spacing_mm``; ``dfsph``: further DFSPH options,

@@ -12,14 +12,13 @@ with N the particles of one layer. The case is quasi-static: one coupled solve, 
 over the middle third of the length.
 """
 
-import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, bore, coupled_pla_defaults,
                                     require_coupled_solve)
 from taichi_mex.scenes.registry import SceneEntry, register
 
@@ -37,12 +36,7 @@ class BoreFlowScene:
         dx = run.spacing_m
         layers = run.wall_layers()
         outer = self.R + layers * dx
-        box = lattice_block([-outer, -outer, 0.0], [outer, outer, self.L], dx)
-        r = np.hypot(box[:, 0], box[:, 1])
-        melt = box[r < self.R]
-        wall = box[(r >= self.R) & (r < outer)]
-        layer_count = int(np.sum(np.abs(melt[:, 2] - melt[0, 2]) < 0.5 * dx))
-        radius = math.sqrt(layer_count * dx * dx / math.pi)
+        melt, wall, radius = bore(self.R, self.L, dx, layers)
         pad = (layers + 3) * dx
         g = run.gravity_m_s2
         nu = material.viscosity_pa_s / material.density_kg_m3

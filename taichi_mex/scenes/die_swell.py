@@ -34,8 +34,8 @@ import numpy as np
 from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.errors import SimulationDiverged, UserInputError
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
-                                    require_coupled_solve)
+from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, bore, coupled_pla_defaults,
+                                    lattice_block, require_coupled_solve)
 from taichi_mex.scenes.registry import SceneEntry, register
 
 #: Nickell, Tanner & Caswell (1974): a Newtonian creeping jet from a long round tube
@@ -64,10 +64,7 @@ class DieSwellScene:
         dx = run.spacing_m
         layers = run.wall_layers()
         outer = self.R + layers * dx
-        box = lattice_block([-outer, -outer, 0.0], [outer, outer, self.L_die], dx)
-        r = np.hypot(box[:, 0], box[:, 1])
-        die = box[r < self.R]
-        wall = box[(r >= self.R) & (r < outer)]
+        die, wall, radius = bore(self.R, self.L_die, dx, layers)
         # the jet on the die's lattice (same offsets across, layers at -(k + 1/2) dx), wide
         # enough for a swell of 2
         wide = outer + math.ceil((2.0 * self.R - outer) / dx) * dx if 2.0 * self.R > outer else outer
@@ -78,10 +75,8 @@ class DieSwellScene:
         # capacity for the jet's later geometries (analyse rebuilds it in place): a swell of 2
         room = int(3 * np.sum(np.hypot(jet[:, 0], jet[:, 1]) < self.R))
         self.dx = dx
-        # the die's melt radius from its cross-section (the wall is the lattice outside the
-        # circle), which Poiseuille's mean speed follows
+        # the die's melt per layer (the lattice's reading of the swell counts against it)
         self.layer = int(np.sum(np.abs(die[:, 2] - die[0, 2]) < 0.5 * dx))
-        radius = math.sqrt(self.layer * dx * dx / math.pi)
         nu = material.viscosity_pa_s / material.density_kg_m3
         pad = (layers + 3) * dx
         side = max(outer, wide) + pad
