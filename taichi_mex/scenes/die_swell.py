@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from taichi_mex.core.state import FLUID, NOZZLE
-from taichi_mex.errors import SimulationDiverged, UserInputError
+from taichi_mex.errors import UserInputError
 from taichi_mex.options import Positive, Range, opt
 from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, bore, coupled_pla_defaults,
                                     lattice_block, require_coupled_solve)
@@ -132,19 +132,6 @@ class DieSwellScene:
                 "depth": depth, "rise": rise, "iterations": res.iterations,
                 "converged": bool(res.converged)}
 
-    def _rebuild(self, sim) -> None:
-        """The particles of the present jet_profile, in place of the old ones."""
-        plan = self.plan(sim.run_opts, sim.material)
-        st = sim.state
-        if plan.initial_count() > st.capacity:
-            raise SimulationDiverged("The die-swell iteration's jet outgrew its capacity (a "
-                                     "swell over 2): the surface iteration is not converging.")
-        st.n = 0
-        for block in plan.blocks:
-            st.append(block.position_m, block.phase, sim.mass, block.velocity_m_s,
-                      density=sim.material.density_kg_m3)
-        sim.grid.stale = True
-
     def analyse(self, sim) -> dict:
         """Nickell, Tanner & Caswell's iteration: solve, move the surface (part of the way,
         by the relaxation) to the lip's streamline, rebuild, until the surface is a streamline
@@ -155,8 +142,9 @@ class DieSwellScene:
         try:
             for k in range(self.iterations):
                 if k:
+                    # the particles of the new jet in place of the old (room for a swell of 2)
                     self.jet_profile = current
-                    self._rebuild(sim)
+                    sim.place(self.plan(sim.run_opts, sim.material).blocks, replace=True)
                 m = self._measure(sim)
                 history.append(m)
                 if abs(m["streamline"] - geometry[-1]) < self.tolerance or k == self.iterations - 1:
@@ -195,8 +183,9 @@ class DieSwellOptions:
                            "swell is read 4-6 radii down)", check=Range(8.0, 100.0))
     iterations: int = opt(6, help="most solves of the free-surface iteration (-)",
                           check=Range(1, 100, integer=True), flag="--surface-iterations")
-    tolerance: float = opt(0.002, help="the iteration stops when the swell changes by less "
-                           "than this (-)", check=Positive(), flag="--swell-tolerance")
+    tolerance: float = opt(0.002, help="the iteration stops when the streamline's far swell and "
+                           "the surface's it was computed in differ by less than this (-)",
+                           check=Positive(), flag="--swell-tolerance")
     relaxation: float = opt(1.0, help="share of the way to the streamline the surface moves "
                             "each iteration (-; 1: all of it)", check=Range(0.0, 1.0, lo_open=True),
                             flag="--relaxation")

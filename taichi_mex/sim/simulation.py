@@ -418,12 +418,7 @@ class Simulation:
         self._initial_fluid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
         # the substrate below a print window's layer: melt printed before the run, not deposited
         self._initial_solid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == SOLID)
-        for block in self.plan.blocks:
-            sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
-                                   density=self.material.density_kg_m3, bead=block.bead,
-                                   time_s=self.plan.t_start_s)
-            if self.thermal is not None and block.temperature_c is not None:
-                self.thermal.set_temperature(sl, block.temperature_c)
+        self.place(self.plan.blocks)
         if self.inlet is not None:
             self.inlet.build_tip(self.plan.t_start_s)
         if self.run_opts.probes_mm:
@@ -431,6 +426,22 @@ class Simulation:
 
             self.probes = ProbeRecorder(self.run_opts.probes_mm, self.kernel.W_np, self.kernel.H)
         self._built = True
+
+    def place(self, blocks, replace: bool = False) -> None:
+        """Create the particles of ``blocks`` (a plan's); replace=True: in place of every
+        particle there is (a scene that rebuilds its geometry between solves)."""
+        if replace:
+            if sum(len(b.position_m) for b in blocks) > self.state.capacity:
+                raise SimulationDiverged(f"The {self.plan.name} scene's new geometry needs more "
+                                         f"than the {self.state.capacity:,} particles planned.")
+            self.state.n = 0
+            self.grid.stale = True
+        for block in blocks:
+            sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
+                                   density=self.material.density_kg_m3, bead=block.bead,
+                                   time_s=self.plan.t_start_s)
+            if self.thermal is not None and block.temperature_c is not None:
+                self.thermal.set_temperature(sl, block.temperature_c)
 
     # ----------------------------------------------------------------- stepping hooks
     def move_boundaries(self, t: float) -> int:
