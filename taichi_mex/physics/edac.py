@@ -14,6 +14,7 @@ import math
 
 from taichi_mex.backend import ti
 from taichi_mex.core.reduce import BlockSum
+from taichi_mex.core.shares import ThreadShares
 from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
@@ -46,6 +47,11 @@ class EDAC:
         self.scratch = ti.field(float, shape=state.capacity)
         self.scratch2 = ti.field(float, shape=state.capacity)
         self.scratch3 = ti.field(float, shape=state.capacity)
+        # the rows each pass works on, listed at every neighbour rebuild (core/shares.py): the
+        # fluid, and the walls that melt sees (the others have no list and are never read)
+        self.fluid_rows = ThreadShares(state.capacity)
+        self.wall_rows = ThreadShares(state.capacity)
+        self._rows_listed_at = -1  # the grid's rebuild count they were listed at
 
     # ------------------------------------------------------------------ time step
     def time_step(self, nu_max: float) -> tuple[float, dict]:
@@ -93,15 +99,42 @@ class EDAC:
     def evaluate(self, correct_dt: float = 0.0, t_eval: float = 0.0) -> int:
         """Rates at the current state; with correct_dt > 0 also the corrector step
         (EDACStep.stage2). Returns the number of non-finite fluid particles."""
+        if self._rows_listed_at != self.grid.rebuilds:
+            nf, nw = (int(v) for v in self._list_rows(self.state.n))
+            self.fluid_rows.split(nf)
+            self.wall_rows.split(nw)
+            self._rows_listed_at = self.grid.rebuilds
         out = self._evaluate(self.state.n, correct_dt, t_eval)
         self.extremes = (float(out[0]), float(out[1]))
         return int(out[2])
 
     @ti.kernel
+    def _list_rows(self, n: ti.i32) -> ti.types.vector(2, ti.i32):
+        nf = 0
+        nw = 0
+        ti.loop_config(serialize=True)
+        for i in range(n):
+            work = self.grid.n_nbr[i]  # the density pass walks the whole list
+            if self.state.phase[i] == FLUID:
+                self.fluid_rows.rows[nf] = i
+                self.fluid_rows.weight[nf] = work
+                nf += 1
+            elif work > 0:
+                self.wall_rows.rows[nw] = i
+                self.wall_rows.weight[nw] = work
+                nw += 1
+            else:  # no melt sees it: what the density and wall passes gave it when they ran
+                self.V[i] = 1.0 / self.K.W0  # over every particle (its output stays the same)
+                self.state.rho[i] = self.rho0
+                self.state.p[i] = 0.0
+                self.v_ghost[i] = self.state.v[i]
+        return ti.Vector([nf, nw])
+
+    @ti.kernel
     def _evaluate(self, n: ti.i32, dt: float, t_eval: float) -> ti.types.vector(3, float):
-        self._density(n)
-        self._walls(n)
-        self._rates(n)
+        self._density()
+        self._walls()
+        self._rates()
         for i in range(n):
             self._advance(i, dt, t_eval)
             ph = self.state.phase[i]
@@ -131,16 +164,22 @@ class EDAC:
         acc += self.K.W(xij.norm())
 
     @ti.func
-    def _density(self, n):
-        for i in range(n):
-            acc = self.K.W0
-            # also sorts each list so that the wall and rate passes below, at the same
-            # positions, visit only the neighbours within the support
-            self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
-            self.V[i] = 1.0 / acc
-            if self.state.phase[i] == FLUID:
+    def _density(self):
+        for k in range(self.fluid_rows.span[None]):
+            i = self.fluid_rows.row(k)
+            if i >= 0:
+                acc = self.K.W0
+                # also sorts each list so that the wall and rate passes below, at the same
+                # positions, visit only the neighbours within the support
+                self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
+                self.V[i] = 1.0 / acc
                 self.state.rho[i] = self.state.m[i] * acc
-            else:
+        for k in range(self.wall_rows.span[None]):
+            i = self.wall_rows.row(k)
+            if i >= 0:
+                acc = self.K.W0
+                self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
+                self.V[i] = 1.0 / acc
                 self.state.rho[i] = self.rho0
 
     @ti.func
@@ -154,9 +193,10 @@ class EDAC:
                 acc[2 + d] += self.state.v[j][d] * w
 
     @ti.func
-    def _walls(self, n):
-        for i in range(n):
-            if self.state.phase[i] != FLUID:
+    def _walls(self):
+        for k in range(self.wall_rows.span[None]):
+            i = self.wall_rows.row(k)
+            if i >= 0:
                 acc = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_support_neighbour(i, self._wall_task, acc)
                 vw = self.state.v[i]
@@ -202,9 +242,10 @@ class EDAC:
         acc[3] += dp
 
     @ti.func
-    def _rates(self, n):
-        for i in range(n):
-            if self.state.phase[i] == FLUID:
+    def _rates(self):
+        for k in range(self.fluid_rows.span[None]):
+            i = self.fluid_rows.row(k)
+            if i >= 0:
                 acc = ti.Vector([0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_support_neighbour(i, self._rate_task, acc)
                 inv_m = 1.0 / self.state.m[i]
