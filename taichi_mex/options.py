@@ -346,13 +346,16 @@ class EDACOptions:
 class DFSPHStabilisers:
     """Stabilisers of the creeping melt that come from no cited paper: each was added after a
     measured failure of the single bead or the paper block (physics/dfsph.py says which), and
-    they are to be replaced by a coupled Stokes solve of pressure and viscosity. A step is
-    'creeping' where nu dt / dx^2 >= creeping_diffusion."""
+    they are to be replaced by a coupled Stokes solve of pressure and viscosity (prints and
+    the Stokes scenes run that by default). A step is 'creeping' where nu dt / dx^2 >=
+    creeping_diffusion. None of them deletes or clamps melt: the droplet ejection and the
+    speed clamp were removed on 2026-12-05; a split run that flings melt now halves its step
+    or stops as blown up."""
 
     creeping_diffusion: float = opt(
         10.0, help="a step is creeping where nu dt / dx^2 >= this (-): viscous diffusion over "
-        "about 3 spacings per step; the difference form of tension, the closing-speed limit, "
-        "droplet ejection and the speed clamp act only there (a water-like fluid, nu dt / dx^2 "
+        "about 3 spacings per step; the difference form of tension and the closing-speed limit "
+        "act only there (a water-like fluid, nu dt / dx^2 "
         "~ 1, blew up with the difference form)", check=Positive())
     tension_relaxation: float = opt(
         0.2, help="inside the melt the density solve also corrects expansions, this fraction per "
@@ -377,26 +380,13 @@ class DFSPHStabilisers:
         0.0, help="particle shifting D = shifting dx^2 per step (-; Lind et al. 2012); 0.5 "
         "wrecked the hydrostatic pressure (56 % error)", check=NonNegative())
     speed_scale_m_s: float | None = opt(
-        None, help="the speed the closing, ejection and clamp speeds scale with (m/s); None: "
+        None, help="the speed the closing speed scales with (m/s); None: "
         "the scene's speed scale (its fastest nozzle move)", check=Either(NONE, NonNegative()),
         parse=parse_optional_float)
     closing_speed_factor: float = opt(
         1.0, help="tension closes gaps in a creeping melt at most this times the speed scale "
         "(-; 0: no limit); a fixed fraction per step pulled at a speed ~ 1/dt and flung melt",
         check=NonNegative())
-    isolated_neighbours: int = opt(
-        4, help="in creeping steps melt with at most this many neighbours moving faster than "
-        "eject_speed_factor times the speed scale is a flung droplet and leaves the run "
-        "(counted as lost)", check=Range(0, 1000, integer=True))
-    eject_speed_factor: float = opt(
-        3.0, help="droplet ejection speed / speed scale (-; 0: off)", check=NonNegative())
-    clamp_speed_factor: float = opt(
-        5.0, help="in creeping steps melt is slowed to this times the speed scale (-; 0: off): "
-        "at Re ~ 1e-5 anything 5x faster than the nozzle is a numerical kick",
-        check=NonNegative())
-    clamp_alarm: float = opt(
-        0.25, help="a step that slows more than this fraction of the melt to the clamp speed "
-        "stops the run as blown up (-)", check=Range(0.0, 1.0, lo_open=True))
     surface_offset_h: float = opt(
         0.15, help="melt whose neighbourhood centre lies more than this fraction of the support "
         "radius off the particle counts as free surface and takes no tension (-)",
@@ -498,8 +488,8 @@ class DFSPHOptions:
         "split", help="creeping steps: 'coupled' (viscous stress and pressure in one "
         "saddle-point solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps "
         "halved or the run stopped; the default of prints and of the Stokes scenes) or "
-        "'split' (implicit viscosity, then the pressure solves, with the stabilisers, which "
-        "delete flung melt and clamp its speed; the default of the other scenes)",
+        "'split' (implicit viscosity, then the pressure solves, with the stabilisers of "
+        "DFSPHStabilisers; the default of the other scenes)",
         check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
     stokes_momentum_tolerance: float = opt(
         3e-4, help="coupled solve: velocity error it stops at, relative to the step's "

@@ -142,6 +142,14 @@ def _coerce(value, hint, where: str):
     return value
 
 
+#: options a run description may still hold from an earlier version, and why they are gone
+REMOVED_OPTIONS = {
+    f"run.dfsph.stabilisers.{name}": "removed on 2026-12-05 with the split solve's droplet "
+    "ejection and speed clamp (they deleted or slowed melt; nothing replaces them)"
+    for name in ("isolated_neighbours", "eject_speed_factor", "clamp_speed_factor", "clamp_alarm")
+}
+
+
 def _build(cls, data: dict, where: str):
     """A dataclass from a (partial) dict; unknown keys refused with a suggestion."""
     if not isinstance(data, dict):
@@ -151,6 +159,9 @@ def _build(cls, data: dict, where: str):
     known = {f.name: f for f in fields(cls)}
     values = {}
     for key, value in data.items():
+        if key not in known and f"{where}{key}" in REMOVED_OPTIONS:
+            raise UserInputError(f"Option {where}{key} was {REMOVED_OPTIONS[where + key]}: delete "
+                                 "it from the run description to run it with this version.")
         if key not in known:
             close = difflib.get_close_matches(key, known, 1)
             raise UserInputError(f"Unknown option {where}{key}" + (f" (did you mean {where}{close[0]}?)"

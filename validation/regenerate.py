@@ -126,10 +126,9 @@ CG = [("pressure / divergence / viscosity CG per step",
        lambda r: "/".join(f" {r.get(k, 0) or 0:.1f} " for k in (
            "pressure_iterations_per_step", "divergence_iterations_per_step",
            "viscosity_iterations_per_step")).strip())]
-LOSSES = [("droplets ejected / particles lost", lambda r: f"{r.get('droplets_ejected', 0)} / "
-           f"{r.get('particles_lost', 0)}"),
-          ("halvings / clamped particle-steps / worst viscous residual",
-           lambda r: f"{r.get('time_step_halvings', 0)} / {r.get('speed_clamped_particle_steps', 0)} / "
+LOSSES = [("particles lost", lambda r: f"{r.get('particles_lost', 0)}"),
+          ("halvings / worst viscous residual",
+           lambda r: f"{r.get('time_step_halvings', 0)} / "
            f"{r.get('viscosity_residual_worst', float('nan')):.2g}")]
 
 

@@ -112,10 +112,7 @@ def run_warnings(summary: dict, run) -> list[str]:
     out = []
     lost = summary.get("particles_lost", 0)
     if lost:
-        ejected = summary.get("droplets_ejected", 0)
-        why = (f"{ejected} of them droplets flung faster than the ejection speed"
-               if ejected else "flung off the nozzle or the part")
-        out.append(f"{lost} melt particles left the domain ({why})")
+        out.append(f"{lost} melt particles left the domain (flung off the nozzle or the part)")
     worst = summary.get("viscosity_residual_worst")
     tol = run.dfsph.viscosity_tolerance
     if worst is not None and worst > 10 * tol:

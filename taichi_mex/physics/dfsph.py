@@ -82,8 +82,6 @@ class DFSPH:
     * creeping_diffusion: the difference form does not conserve momentum; the viscous solve
       spreads that out at once in a creeping melt (single bead: nu dt / dx^2 = 650 scaled,
       6.5e4 unscaled) but a water-like fluid (nu dt / dx^2 ~ 1) accumulated it and blew up.
-    * clamp_speed_factor: a melt at Re ~ 1e-5 moves with the nozzle, so anything 5x faster is
-      a kick from the pressure solve, which otherwise cut the step until the run blew up.
     """
 
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float,
@@ -109,17 +107,13 @@ class DFSPH:
         self.release_growing_only = bool(st.release_growing_only)
         self.pressure_memory_loss = float(st.pressure_memory_loss)
         self.shifting = float(st.shifting)
-        self.isolated_neighbours = int(st.isolated_neighbours)
         # the particles the solves loop over (fluid, and the inlet column's rows); the solver
         # updates it after every sort and phase change
         self.rows = FluidIndex(state, with_inlet=self.inlet_rows)
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
-        # fastest a creeping melt's gaps close, the droplet ejection speed and the clamp speed
-        # (m/s; 0: off)
+        # fastest a creeping melt's gaps close (m/s; 0: no limit)
         scale = float(speed_scale_m_s if st.speed_scale_m_s is None else st.speed_scale_m_s)
         self.closing_speed = float(st.closing_speed_factor) * scale
-        self.eject_speed = float(st.eject_speed_factor) * scale
-        self.clamp_speed = float(st.clamp_speed_factor) * scale
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -592,12 +586,11 @@ class DFSPH:
         return vmax
 
     @ti.kernel
-    def finish(self, n: ti.i32, dt: float, shift: float) -> ti.types.vector(4, float):
+    def finish(self, n: ti.i32, dt: float, shift: float) -> ti.types.vector(2, float):
         """Pressure for output (p = kappa rho^2 / rho0), the divergence stiffness made
-        dt-independent for the next warm start, flung droplets ejected (moved far outside the
-        domain: the next sort drops them as lost), creeping melt slowed to clamp_speed, fluid
-        moved; returns (max fluid speed, non-finite fluid particles, droplets ejected, melt
-        slowed).
+        dt-independent for the next warm start, fluid moved; returns (max fluid speed,
+        non-finite fluid particles). No melt is removed or slowed here: a step whose melt
+        moves too far is redone shorter by the caller, or the run stops.
 
         The density solve's k is pressure-like (the compression a step creates scales with
         dt^2); the divergence solve's k scales with 1/dt, so it is stored times dt.
@@ -610,23 +603,8 @@ class DFSPH:
         its gaps, so D is a fixed fraction of dx^2 per step (no shift on a uniform lattice)."""
         vmax = 0.0
         bad = 0.0
-        ejected = 0.0
-        clamped = 0.0
         for i in range(n):
             if self.state.phase[i] == FLUID:
-                speed = self.state.v[i].norm()
-                creeping = self._creeping(i, dt)  # a splash in water is physics: left alone
-                if ti.static(self.eject_speed > 0.0):
-                    if (creeping and self.n_count[i] <= self.isolated_neighbours
-                            and speed > self.eject_speed):
-                        self.state.x[i] = ti.Vector([1e3, 1e3, 1e3])
-                        self.state.v[i] = ti.Vector([0.0, 0.0, 0.0])
-                        ejected += 1.0
-                        continue
-                if ti.static(self.clamp_speed > 0.0):
-                    if creeping and speed > self.clamp_speed:
-                        self.state.v[i] *= self.clamp_speed / speed
-                        clamped += 1.0
                 rho = self.state.rho[i]
                 self.state.p[i] = self.kappa[i] * rho * rho / self.rho0
                 self.kappa_v[i] *= dt
@@ -645,4 +623,4 @@ class DFSPH:
                     bad += 1.0
                 else:
                     ti.atomic_max(vmax, s)
-        return ti.Vector([vmax, bad, ejected, clamped])
+        return ti.Vector([vmax, bad])

@@ -157,7 +157,6 @@ class DFSPHSolver:
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
-        self.clamp_alarm = float(run.dfsph.stabilisers.clamp_alarm)
         self.vmax = 0.0
         self.dx = run.spacing_m
         self.halvings = 0
@@ -165,8 +164,6 @@ class DFSPHSolver:
         self.unconverged = {"divergence": 0, "viscosity": 0, "pressure": 0,
                             "compression correction": 0, "coupled": 0}
         self.corrections = 0
-        self.ejected = 0
-        self.clamped = 0
         cap = state.capacity
         self.saved_v = ti.Vector.field(3, float, shape=cap)
         self.saved_k = ti.Vector.field(2, float, shape=cap)
@@ -227,9 +224,7 @@ class DFSPHSolver:
 
     # DFSPHOptions.max_travel_spacings: a step whose pressure solve leaves melt moving more
     # than this many spacings is redone with half the time step (the CFL bound uses the
-    # velocities before the solve). stabilisers.clamp_alarm = 0.25: the first melt squeezed
-    # under the tip at a 0.1 mm layer slows 11 % in one step, and that run then ends with 1 %
-    # compression (stability case 'layer 0.25 D').
+    # velocities before the solve).
 
     @ti.kernel
     def _save(self, n: ti.i32):
@@ -257,7 +252,7 @@ class DFSPHSolver:
         self._record_peak(float(d.rho_peak[None]) / d.rho0 - 1.0)
         with h.phase("heat"):
             h.heat_step(dt)  # at x_n, with this step's lists and densities
-        nf = self.fluid.update()  # after solidification too
+        self.fluid.update()  # after solidification too
         d.rows.update()
         self._save(n)
         if self.stokes is not None:
@@ -315,13 +310,6 @@ class DFSPHSolver:
             out = d.finish(n, dt, d.shifting * self.dx * self.dx)
         self.vmax = float(out[0])
         self._record_speed()
-        self.ejected += int(out[2])
-        self.clamped += int(out[3])
-        if out[3] > max(self.clamp_alarm * nf, 10):
-            h.diverged(t + dt, f"{int(out[3])} of {nf} melt particles moved faster than "
-                               f"{d.clamp_speed:.3g} m/s in one creeping step (the clamp speed, "
-                               "DFSPHOptions.stabilisers.clamp_speed_factor times the nozzle's "
-                               "fastest move)")
         if out[1] > 0:
             h.diverged(t + dt, f"{int(out[1])} melt particles have non-finite velocities after "
                                  "the pressure solve")
@@ -443,7 +431,6 @@ class DFSPHSolver:
             "time_step_halvings": self.halvings,
             "unconverged_solves_redone": dict(self.unconverged),
             "compression_corrections": self.corrections,
-            "droplets_ejected": self.ejected,
             "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
             # the inner viscous iterations of the block-triangular preconditioner
             "stokes_inner_iterations_per_step": self.totals["stokes_inner_iterations"] / steps,
@@ -452,7 +439,6 @@ class DFSPHSolver:
             # melt torn off into fragments that touch nothing: steps with any, most at once
             "stokes_free_fragment_steps": self.totals["stokes_free_steps"],
             "stokes_free_fragment_particles_max": self.worst["stokes_free_rows"],
-            "speed_clamped_particle_steps": self.clamped,
             # the fastest melt of the run, and the steps whose fastest melt outran the fastest
             # wall (the nozzle) by 1-2x, 2-4x, more
             "melt_speed_max_m_s": self.worst["melt_speed"],
