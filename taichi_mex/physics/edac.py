@@ -164,22 +164,24 @@ class EDAC:
         acc += self.K.W(xij.norm())
 
     @ti.func
+    def _number_density(self, i):
+        """sum_j W_ij (with W(0)), and V_i from it. Also sorts i's list so that the wall and
+        rate passes below, at the same positions, visit only the neighbours within the support."""
+        acc = self.K.W0
+        self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
+        self.V[i] = 1.0 / acc
+        return acc
+
+    @ti.func
     def _density(self):
         for k in range(self.fluid_rows.span[None]):
             i = self.fluid_rows.row(k)
             if i >= 0:
-                acc = self.K.W0
-                # also sorts each list so that the wall and rate passes below, at the same
-                # positions, visit only the neighbours within the support
-                self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
-                self.V[i] = 1.0 / acc
-                self.state.rho[i] = self.state.m[i] * acc
+                self.state.rho[i] = self.state.m[i] * self._number_density(i)
         for k in range(self.wall_rows.span[None]):
             i = self.wall_rows.row(k)
             if i >= 0:
-                acc = self.K.W0
-                self.grid.for_each_neighbour_partitioning(i, self._density_task, acc)
-                self.V[i] = 1.0 / acc
+                self._number_density(i)
                 self.state.rho[i] = self.rho0
 
     @ti.func
