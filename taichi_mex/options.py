@@ -688,12 +688,9 @@ class RunOptions:
                          "(days of computing, usually an explicit scheme at a real melt "
                          "viscosity); raise it to insist", check=Range(1, None, integer=True))
     viscosity_scale: float | str = opt(
-        "auto", help="creeping-flow scaling of the melt viscosity: 'auto' (with DFSPH's split "
-        "solve the smallest factor keeping the Reynolds number, the gravity number and the "
-        "gravity slump below creeping_limit; the coupled solve runs at the real viscosity, "
-        "where the bundled bead took 15.0 / 40.7 GMRES / inner iterations a step against "
-        "18.2 / 45.7 scaled, and scaled it carried the slump the limit admits, height "
-        "0.1945 mm against 0.202 at draft, 2026-12-05), 'off' or a factor in (0, 1]",
+        "auto", help="creeping-flow scaling of the melt viscosity: 'auto' (the smallest factor "
+        "keeping the Reynolds number, the gravity number and the gravity slump below "
+        "creeping_limit; DFSPH prints only), 'off' or a factor in (0, 1]",
         check=Either(OneOf("auto"), Range(0.0, 1.0, lo_open=True)), flag="--viscosity-scale",
         names=("viscosity_scale",), parse=parse_viscosity_scale)
     creeping_limit: float = opt(0.05, help="largest Reynolds number, gravity number and slump "

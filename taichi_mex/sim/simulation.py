@@ -153,10 +153,7 @@ class Simulation:
                "gravity_slump": rho * g * L * T / eta}
         if run.viscosity_scale == "auto":
             scale = 1.0
-            # the coupled solve is the Stokes problem at any viscosity and converges in fewer
-            # iterations at the real one; scaled, its beads carried the gravity slump the
-            # scaling admits (RunOptions.viscosity_scale)
-            if run.scheme == "dfsph" and run.dfsph.creeping_solve != "coupled":
+            if run.scheme == "dfsph":
                 scale = min(1.0, max(raw.values()) / run.creeping_limit)
         else:
             scale = float(run.viscosity_scale)
