@@ -452,10 +452,9 @@ CASES = {
         COUPLED_STRAND,
         folder="strands", tag="step"),
     "strands_viscosity": Case(
-        "coupled strands at the real viscosity (a print's default since 2026-12-05) against the "
-        "creeping-flow scaling 'auto' gave them before (x 0.0127 for the bundled bead, x 0.0143 "
-        "for the 0.15 mm gap's line): does the shape depend on the viscosity, and what does "
-        "each cost?",
+        "coupled strands at the real viscosity against the creeping-flow scaling 'auto' gives "
+        "them (x 0.0127 for the bundled bead, x 0.0143 for the 0.15 mm gap's line): does the "
+        "shape depend on the viscosity, and what does each cost?",
         [(f"gap {g:.2f}, width {w:.2f}, {res}, {label}",
           strand(g, w, "--resolution", res, "--viscosity-scale", scale),
           {"gap_mm": g, "width_mm": w})
