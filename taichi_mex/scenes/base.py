@@ -119,19 +119,32 @@ def lattice_block(lo_m, hi_m, spacing_m: float) -> np.ndarray:
     return np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
 
 
-def bore(radius_m: float, length_m: float, spacing_m: float, layers: int):
-    """A vertical bore on the cell-centred lattice from z = 0 to length_m: (melt, wall), the
-    lattice inside the circle of radius_m and the lattice ring of ``layers`` spacings outside
-    it (the nozzle's bore, a die), and the melt's radius from its cross-section,
-    sqrt(N dx^2 / pi) with N the particles of one layer (the wall's staircase moves it off
-    radius_m)."""
+@dataclass
+class Bore:
+    """A vertical bore on the cell-centred lattice (the nozzle's bore, a die)."""
+
+    melt: np.ndarray  # positions inside the circle of the radius asked for (m)
+    wall: np.ndarray  # the lattice ring of the wall's layers outside it (m)
+    spacing_m: float
+    outer_m: float  # the wall's outer radius
+    per_layer: int  # melt particles in one lattice layer
+
+    @property
+    def radius_m(self) -> float:
+        """The melt's radius from its cross-section, sqrt(N dx^2 / pi) with N = per_layer (the
+        wall's staircase moves it off the radius asked for)."""
+        return float(np.sqrt(self.per_layer * self.spacing_m * self.spacing_m / np.pi))
+
+
+def bore(radius_m: float, length_m: float, spacing_m: float, layers: int) -> Bore:
+    """A bore from z = 0 to length_m: the lattice inside the circle of radius_m (melt) and the
+    ring of ``layers`` spacings outside it (wall)."""
     outer = radius_m + layers * spacing_m
     box = lattice_block([-outer, -outer, 0.0], [outer, outer, length_m], spacing_m)
     r = np.hypot(box[:, 0], box[:, 1])
     melt = box[r < radius_m]
-    wall = box[(r >= radius_m) & (r < outer)]
     layer = int(np.sum(np.abs(melt[:, 2] - melt[0, 2]) < 0.5 * spacing_m))
-    return melt, wall, float(np.sqrt(layer * spacing_m * spacing_m / np.pi))
+    return Bore(melt, box[(r >= radius_m) & (r < outer)], spacing_m, outer, layer)
 
 
 def coupled_pla_defaults(spacing_mm: float, dfsph: dict | None = None, **run) -> dict:

@@ -35,8 +35,8 @@ class BoreFlowScene:
         require_coupled_solve(run, "bore flow")
         dx = run.spacing_m
         layers = run.wall_layers()
-        outer = self.R + layers * dx
-        melt, wall, radius = bore(self.R, self.L, dx, layers)
+        b = bore(self.R, self.L, dx, layers)
+        melt, wall, radius, outer = b.melt, b.wall, b.radius_m, b.outer_m
         pad = (layers + 3) * dx
         g = run.gravity_m_s2
         nu = material.viscosity_pa_s / material.density_kg_m3

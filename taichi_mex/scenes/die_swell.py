@@ -63,8 +63,8 @@ class DieSwellScene:
         require_coupled_solve(run, "die swell")
         dx = run.spacing_m
         layers = run.wall_layers()
-        outer = self.R + layers * dx
-        die, wall, radius = bore(self.R, self.L_die, dx, layers)
+        b = bore(self.R, self.L_die, dx, layers)
+        die, wall, radius, outer = b.melt, b.wall, b.radius_m, b.outer_m
         # the jet on the die's lattice (same offsets across, layers at -(k + 1/2) dx), wide
         # enough for a swell of 2
         wide = outer + math.ceil((2.0 * self.R - outer) / dx) * dx if 2.0 * self.R > outer else outer
@@ -75,11 +75,10 @@ class DieSwellScene:
         # capacity for the jet's later geometries (analyse rebuilds it in place): a swell of 2
         room = int(3 * np.sum(np.hypot(jet[:, 0], jet[:, 1]) < self.R))
         self.dx = dx
-        # the die's melt per layer (the lattice's reading of the swell counts against it)
-        self.layer = int(np.sum(np.abs(die[:, 2] - die[0, 2]) < 0.5 * dx))
+        self.layer = b.per_layer  # the lattice's reading of the swell counts against it
         nu = material.viscosity_pa_s / material.density_kg_m3
         pad = (layers + 3) * dx
-        side = max(outer, wide) + pad
+        side = wide + pad  # wide >= outer
         return ScenePlan(
             name=self.name,
             domain_lo_m=np.array([-side, -side, -self.L_jet - pad]),
