@@ -32,11 +32,9 @@ class ThreadShares:
         self.bounds = ti.field(ti.i32, shape=self.threads + 1)  # share t: rows[bounds[t]..bounds[t+1])
         self.share = ti.field(ti.i32, shape=())  # the longest share
         self.span = ti.field(ti.i32, shape=())  # the loop's length: threads x share
-        self.n = 0
 
     def split(self, n: int) -> None:
-        self.n = int(n)
-        self._split(self.n)
+        self._split(int(n))
 
     @ti.kernel
     def _split(self, n: ti.i32):
