@@ -344,19 +344,14 @@ class EDACOptions:
 
 @dataclass
 class DFSPHStabilisers:
-    """Stabilisers of the creeping melt that come from no cited paper: each was added after a
-    measured failure of the single bead or the paper block (physics/dfsph.py says which), and
-    they are to be replaced by a coupled Stokes solve of pressure and viscosity (prints and
-    the Stokes scenes run that by default). A step is 'creeping' where nu dt / dx^2 >=
-    creeping_diffusion. None of them deletes or clamps melt: the droplet ejection and the
-    speed clamp were removed on 2026-12-05; a split run that flings melt now halves its step
-    or stops as blown up."""
+    """Stabilisers of the split solve (DFSPH) that come from no cited paper, kept for the
+    inertial scenes it still serves (hydrostatic, shear): without the incremental pressure and
+    its interior tension the papers' solve left the hydrostatic column's pressure 27-44 % off
+    (physics/dfsph.py). A creeping melt, for which the others were added, takes the coupled
+    solve; the split solve refuses it (run.dfsph.creeping_diffusion). None deletes or clamps
+    melt; the creeping-only ones (the closing-speed cap, tension's difference form and its
+    release) and the droplet ejection and speed clamp are gone (spec.REMOVED_OPTIONS)."""
 
-    creeping_diffusion: float = opt(
-        10.0, help="a step is creeping where nu dt / dx^2 >= this (-): viscous diffusion over "
-        "about 3 spacings per step; the difference form of tension and the closing-speed limit "
-        "act only there (a water-like fluid, nu dt / dx^2 "
-        "~ 1, blew up with the difference form)", check=Positive())
     tension_relaxation: float = opt(
         0.2, help="inside the melt the density solve also corrects expansions, this fraction per "
         "step (-; the unscaled single bead blew up at 0.3-1.0)", check=Range(0.0, 1.0))
@@ -364,14 +359,6 @@ class DFSPHStabilisers:
         "interior", help="where the divergence solve also removes expansion rates: 'none' (the "
         "paper: compression only), 'interior' (away from the free surface and the nozzle) or "
         "'everywhere'", check=OneOf("none", "interior", "everywhere"))
-    tension_form: str = opt(
-        "difference", help="how tension (k < 0) acts in creeping steps: 'difference' (pressure "
-        "gradients only) or 'symmetric' (the papers' G, which pairs melt under tension)",
-        check=OneOf("difference", "symmetric"))
-    release_growing_only: bool = opt(
-        True, help="take back only the uniform part of tension the density solve adds; a step "
-        "that relieves tension keeps its symmetric form (else melt under tension was pressed "
-        "into the plate: +1.1 % compression at the bead's bottom edge)", check=Flag())
     pressure_memory_loss: float = opt(
         0.05, help="fraction of last step's summed pressure the predictor forgets (-): noise of "
         "the toleranced solves would otherwise random-walk from step to step; the density "
@@ -379,14 +366,6 @@ class DFSPHStabilisers:
     shifting: float = opt(
         0.0, help="particle shifting D = shifting dx^2 per step (-; Lind et al. 2012); 0.5 "
         "wrecked the hydrostatic pressure (56 % error)", check=NonNegative())
-    speed_scale_m_s: float | None = opt(
-        None, help="the speed the closing speed scales with (m/s); None: "
-        "the scene's speed scale (its fastest nozzle move)", check=Either(NONE, NonNegative()),
-        parse=parse_optional_float)
-    closing_speed_factor: float = opt(
-        1.0, help="tension closes gaps in a creeping melt at most this times the speed scale "
-        "(-; 0: no limit); a fixed fraction per step pulled at a speed ~ 1/dt and flung melt",
-        check=NonNegative())
     surface_offset_h: float = opt(
         0.15, help="melt whose neighbourhood centre lies more than this fraction of the support "
         "radius off the particle counts as free surface and takes no tension (-)",
@@ -413,21 +392,13 @@ class DFSPHOptions:
     max_divergence_error_local: float = opt(
         1e-2, help="... and at this largest error of any particle (fraction)",
         check=Range(0.0, 0.5, lo_open=True))
-    compression_check: float | None = opt(
-        9e-3, help="after the density solve, sum the density at the step's new positions and, "
-        "while the densest melt is compressed more than this (fraction), solve again from that "
-        "density, compression only (the solve itself sees only the linear prediction "
-        "rho + dt D(v)); None: no check", check=Either(NONE, Range(0.0, 0.1, lo_open=True)),
-        parse=parse_optional_float)
-    compression_corrections: int = opt(3, help="at most this many compression corrections per "
-                                       "step", check=Range(0, 20, integer=True))
     min_iterations: int = opt(2, help="pressure solves run at least this many iterations",
                               check=Range(0, 1000, integer=True))
     max_iterations: int = opt(100, help="pressure solves stop after this many iterations",
                               check=Range(1, 100000, integer=True))
     divergence_solve: bool | str = opt(
-        "auto", help="true, false or 'auto': off in creeping steps (nu dt / dx^2 >= "
-        "the creeping threshold), where the viscous solve, not inertia, sets the velocity",
+        "auto", help="split solve: true, false or 'auto': off in creeping steps (nu dt / dx^2 "
+        ">= creeping_diffusion), where the viscous solve, not inertia, sets the velocity",
         check=OneOf(True, False, "auto"), parse=parse_bool_or_auto)
     cfl: float = opt(0.5, help="dt = cfl 0.4 spacing / |v|max (-; SPlisHSPlasH's form)",
                      check=Range(0.0, 2.0, lo_open=True))
@@ -439,7 +410,7 @@ class DFSPHOptions:
     no_slip: bool = opt(True, help="plate and nozzle are no-slip walls for the viscosity solve",
                         check=Flag())
     relative_residual: float | None = opt(
-        0.1, help="outside creeping steps the density solve also runs until its preconditioned "
+        0.1, help="the density solve also runs until its preconditioned "
         "residual norm has fallen by this factor (-; CG only; None: stop on the absolute errors "
         "alone). The summed "
         "pressure is a running sum of the solves' increments; with absolute stops alone a "
@@ -469,28 +440,25 @@ class DFSPHOptions:
         False, help="the density solve corrects compression only, everywhere, as in the paper "
         "(with tension inside the melt allowed, see stabilisers.tension_relaxation)",
         check=Flag())
-    inlet_rows: bool = opt(
-        True, help="the melt column in the bore takes part in the density solve as rows with a "
-        "prescribed velocity (compression only); without, slices left the bore up to 8 % "
-        "compressed", check=Flag())
-    inlet_row_min_coupling: float = opt(
-        0.1, help="... where the fluid makes up at least this share of the row's "
-        "sum_j |V_j grad W_ij|^2 (-)", check=Range(0.0, 1.0))
-    correction_in_pressure: bool = opt(
-        False, help="a compression correction's k stays in the summed pressure (else it changes "
-        "the velocity only; kept, the next step re-applied the kick)", check=Flag())
     max_travel_spacings: float = opt(
         0.5, help="a step whose pressure solve leaves melt moving more than this many spacings "
         "is redone with half the time step (-)", check=Positive())
     step_retries: int = opt(4, help="at most this many halvings of one step",
                             check=Range(0, 30, integer=True))
     creeping_solve: str = opt(
-        "split", help="creeping steps: 'coupled' (viscous stress and pressure in one "
-        "saddle-point solve, physics/stokes.py: no stabiliser, no deletion, unconverged steps "
-        "halved or the run stopped; the default of prints and of the Stokes scenes) or "
-        "'split' (implicit viscosity, then the pressure solves, with the stabilisers of "
-        "DFSPHStabilisers; the default of the other scenes)",
+        "coupled", help="how a step solves viscosity and pressure: 'coupled' (in one "
+        "saddle-point solve, physics/stokes.py: the melt's creeping flow, with no stabiliser "
+        "and no deletion, an unconverged step halved or the run stopped; the default) or "
+        "'split' (DFSPH, Bender & Koschier 2017, with Weiler et al.'s 2018 implicit viscosity "
+        "before the pressure solves, physics/dfsph.py: for inertial flows, the hydrostatic "
+        "and shear scenes' default; refused where the melt creeps, since there the split "
+        "leaves an error the size of the solution)",
         check=OneOf("split", "coupled"), flag="--creeping-solve", names=("creeping_solve",))
+    creeping_diffusion: float = opt(
+        10.0, help="a step counts as creeping where nu dt / dx^2 >= this (-): viscous diffusion "
+        "crosses about 3 spacings in the step, so inertia is gone within it. A run may then "
+        "skip a span in which nothing drives the melt; the split solve refuses a run whose "
+        "largest step would be creeping", check=Positive())
     stokes_momentum_tolerance: float = opt(
         3e-4, help="coupled solve: velocity error it stops at, relative to the step's "
         "velocities (-): the momentum rows' residual and the motion the pressure error the "
@@ -583,8 +551,8 @@ class DFSPHOptions:
         "in a step; off: incompressible rows, which a fragment of one or two particles at the "
         "edge of its neighbours' kernels makes near-singular (benchy's window stalled at "
         "t = 181.365 s, physics/stokes.py)", check=Flag())
-    stabilisers: DFSPHStabilisers = opt(help="creeping-melt stabilisers of the 'split' solve "
-                                        "(no cited source; 'coupled' needs none)",
+    stabilisers: DFSPHStabilisers = opt(help="stabilisers of the 'split' solve, for inertial "
+                                        "flows (no cited source; 'coupled' needs none)",
                                         factory=DFSPHStabilisers)
 
 

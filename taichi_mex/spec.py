@@ -143,10 +143,23 @@ def _coerce(value, hint, where: str):
 
 
 #: options a run description may still hold from an earlier version, and why they are gone
+_EJECTION = ("removed on 2026-12-05 with the split solve's droplet ejection and speed clamp "
+             "(they deleted or slowed melt; nothing replaces them)")
+_CREEPING = ("removed on 2026-12-05: it held the split solve together in a creeping melt, which "
+             "now takes the coupled solve (--creeping-solve coupled, the default; the split "
+             "solve refuses a creeping melt)")
 REMOVED_OPTIONS = {
-    f"run.dfsph.stabilisers.{name}": "removed on 2026-12-05 with the split solve's droplet "
-    "ejection and speed clamp (they deleted or slowed melt; nothing replaces them)"
-    for name in ("isolated_neighbours", "eject_speed_factor", "clamp_speed_factor", "clamp_alarm")
+    **{f"run.dfsph.stabilisers.{name}": _EJECTION
+       for name in ("isolated_neighbours", "eject_speed_factor", "clamp_speed_factor",
+                    "clamp_alarm")},
+    **{f"run.dfsph.stabilisers.{name}": _CREEPING
+       for name in ("tension_form", "release_growing_only", "speed_scale_m_s",
+                    "closing_speed_factor")},
+    **{f"run.dfsph.{name}": _CREEPING
+       for name in ("compression_check", "compression_corrections", "inlet_rows",
+                    "inlet_row_min_coupling", "correction_in_pressure")},
+    "run.dfsph.stabilisers.creeping_diffusion": "moved on 2026-12-05 to "
+    "run.dfsph.creeping_diffusion (it says which steps are creeping, and stabilises nothing)",
 }
 
 

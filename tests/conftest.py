@@ -24,7 +24,7 @@ def write_gcode(tmp_path):
 #: (python -m pytest, ~10 minutes on 2 cores); slow cases are marked slow and run with -m slow.
 #:   python -m pytest -m "not validation and not slow"     # unit tier, about a minute
 #:   python -m pytest -m validation                        # validation tier
-VALIDATION_FILES = {"test_dfsph.py", "test_edac.py", "test_thermal.py", "test_tension.py", "test_outputs.py",
+VALIDATION_FILES = {"test_dfsph.py", "test_edac.py", "test_thermal.py", "test_outputs.py",
                     "test_print.py", "test_stability.py", "test_dam_break.py", "test_pairing.py",
                     "test_idle.py", "test_stokes.py", "test_extension.py", "test_die_swell.py"}
 

@@ -25,8 +25,8 @@ def test_dry_run_on_bundled_default(tmp_path, capsys):
 
 def test_a_print_takes_the_coupled_solve_and_either_surface_condition():
     """A print's creeping melt takes the coupled solve without the surface traction by
-    default; --creeping-solve split and --surface-traction change that, a collapse keeps
-    the split solve."""
+    default; --creeping-solve split and --surface-traction change that; a collapse takes the
+    coupled solve too."""
     from taichi_mex.app.cli import print_parser, spec_from_args
 
     def solve(*argv):
@@ -39,7 +39,7 @@ def test_a_print_takes_the_coupled_solve_and_either_surface_condition():
     assert solve("--surface-traction", "--no-surface-traction") == ("coupled", False)
     assert solve("--creeping-solve", "split")[0] == "split"
     from taichi_mex.spec import RunSpec
-    assert RunSpec.create("collapse").run.dfsph.creeping_solve == "split"
+    assert RunSpec.create("collapse").run.dfsph.creeping_solve == "coupled"
 
 
 def test_pygcodedecode_examples_by_name(tmp_path):

@@ -8,16 +8,17 @@ import numpy as np
 import pytest
 
 from taichi_mex.app.cli import main
-from taichi_mex.options import Material, RunOptions
+from taichi_mex.options import DFSPHOptions, Material, RunOptions
 from taichi_mex.scenes.hydrostatic import HydrostaticScene
 from taichi_mex.scenes.shear import ShearStartScene
 from taichi_mex.sim.simulation import Simulation
 
 WATERLIKE = Material(name="test fluid", density_kg_m3=1000.0, viscosity_pa_s=1.0)
+SPLIT = DFSPHOptions(creeping_solve="split")  # DFSPH: the inertial scenes' solve
 
 
 def test_hydrostatic_pressure_dfsph(tmp_path):
-    """At 12 spacings of depth, once the column has settled (0.6 s): dp/dz = rho g within
+    """The split solve (DFSPH) at 12 spacings of depth, once the column has settled (0.6 s): dp/dz = rho g within
     10 %, slab-mean pressure within 15 % (max) and 8 % (mean) of rho g H; the melt stays
     incompressible to 0.1 %.
 
@@ -33,7 +34,8 @@ def test_hydrostatic_pressure_dfsph(tmp_path):
     import h5py
 
     sim = Simulation(HydrostaticScene(width_mm=8, height_mm=12, until_s=0.6),
-                     RunOptions(scheme="dfsph", spacing_mm=1.0, progress=False, snapshots=False),
+                     RunOptions(scheme="dfsph", spacing_mm=1.0, progress=False, snapshots=False,
+                                dfsph=SPLIT),
                      WATERLIKE, out_dir=tmp_path)
     s = sim.run()
     assert sim.thermal is None and sim.solidification is None
@@ -53,7 +55,7 @@ def test_shear_start_up_matches_erfc():
     """Stokes' first problem at 10 spacings per penetration depth: u within 6 % of U."""
     scene = ShearStartScene(length_mm=6, height_mm=3, plate_speed_m_s=0.01, until_s=0.01)
     sim = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.2, progress=False,
-                                       snapshots=False, gravity_m_s2=0.0),
+                                       snapshots=False, gravity_m_s2=0.0, dfsph=SPLIT),
                      Material(name="shear fluid", density_kg_m3=1000.0, viscosity_pa_s=0.1))
     s = sim.run()
     assert s["shear_error_max_rel_U"] < 0.06
@@ -64,9 +66,10 @@ def test_shear_start_up_matches_erfc():
 
 def test_collapse_spreads_like_huppert(tmp_path):
     """A 4 x 4 mm cylinder (eta = 10 Pa s) at 0.5 mm spacing for 12 s against Huppert's
-    similarity solution r = eta_N (g V^3 / 3 nu)^(1/8) (t - t0)^(1/8): the coefficient of
-    r^8 over the second half of the run within 5 % (measured 0.999; 1.008 at 0.4 mm and 0.997
-    at 0.3 mm over 30 s), the front itself within 5 % there (measured 0.972)."""
+    similarity solution r = eta_N (g V^3 / 3 nu)^(1/8) (t - t0)^(1/8), with the coupled solve
+    (the scene's default): the coefficient of r^8 over the second half of the run within 5 %
+    (measured 1.016 in 237 steps, 2026-12-05; validation/collapse has 0.4 and 0.3 mm and
+    1-1000 Pa s), the front itself within 5 % there (measured 1.002)."""
     out = tmp_path / "collapse"
     code = main(["scene", "collapse", "--radius-mm", "4", "--height-mm", "4", "--viscosity", "10",
                  "--density", "1000", "--spacing-mm", "0.5", "--until", "12", "--out", str(out),
@@ -116,100 +119,36 @@ def test_print_reports_creeping_numbers_and_scales_honestly(tmp_path):
     assert "creeping-flow scaling" in sim.describe_creeping()
 
 
-def test_single_bead_at_real_viscosity_is_not_paired(tmp_path):
-    """The whole single bead, unscaled 1000 Pa s, 0.2 mm layer under the 0.4 mm nozzle, draft
-    spacing (3 particles across the layer). Measured 2026-12-01: with tension in the
-    difference form 5.2 % of the melt paired, no section voids, interior summation density
-    0.78 % off, material area +0.2 %; the symmetric form (with no tension near the nozzle)
-    paired 20.6 %, left 11 % voids and 1.9 %."""
-    from taichi_mex import bundled
-    from taichi_mex.scenes.print import PrintScene
+def test_a_description_with_the_retired_stabilisers_says_what_to_do():
+    """A run description written before 2026-12-05 may hold the split solve's creeping-melt
+    stabilisers, its compression re-solve or its droplet ejection: it is refused with why
+    they are gone and what to change, not with a bare 'unknown option'."""
+    from taichi_mex.errors import UserInputError
+    from taichi_mex.spec import RunSpec
 
-    sim = Simulation(PrintScene(bundled.gcode_path("single_bead")),
-                     RunOptions(scheme="dfsph", spacing_mm=0.0667, viscosity_scale=1.0,
-                                progress=False, snapshots=False), Material(), out_dir=tmp_path)
-    s = sim.run()
-    assert s["viscosity_as_run_pa_s"] == 1000.0 and s["time_step_halvings"] == 0
-    assert s["paired_fraction"] < 0.10
-    assert s["void_fraction"] == 0.0
-    assert s["density_error_mean"] < 0.012
-    assert s["compression_error_max"] < 0.05
-    commanded_area_mm2 = 0.08142  # single_bead.gcode: 0.45 x 0.2 mm rounded rectangle
-    assert s["bead_material_area_mm2"] == pytest.approx(commanded_area_mm2, rel=0.03)
-
-
-def _fastest_melt_in_paper_block(tmp_path, dfsph=None):
-    """Fastest melt (m/s), the summary and the nozzle's speed scale over the unscaled paper
-    block's first bead and the lift and travel after it, at 4 particles per 0.4 mm layer
-    (dfsph: DFSPHOptions to run with)."""
-    from taichi_mex import bundled
-    from taichi_mex.options import DFSPHOptions
-    from taichi_mex.scenes.print import PrintScene
-
-    scene = PrintScene(bundled.gcode_path("paper_block_3x3"), until_s=0.6)
-    speeds = []
-    scene.monitor = lambda sim, t: speeds.append(sim.solver.max_speed())
-    sim = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, viscosity_scale=1.0,
-                                       progress=False, snapshots=False,
-                                       dfsph=dfsph or DFSPHOptions()),
-                     Material(), out_dir=tmp_path)
-    s = sim.run()
-    return max(speeds), s, sim.plan.speed_scale_m_s
+    for where, key, said in ((("stabilisers",), "closing_speed_factor", "coupled solve"),
+                             (("stabilisers",), "eject_speed_factor", "deleted or slowed"),
+                             (("stabilisers",), "creeping_diffusion", "moved .* to "
+                              "run.dfsph.creeping_diffusion"),
+                             ((), "compression_check", "coupled solve")):
+        data = RunSpec.create("print").to_dict()
+        table = data["run"]["dfsph"]
+        for name in where:
+            table = table[name]
+        table[key] = 1.0
+        with pytest.raises(UserInputError, match=f"{key} was .*{said}.*: delete it"):
+            RunSpec.from_dict(data)
 
 
-def test_unscaled_block_travel_does_not_fling_melt(tmp_path):
-    """The nozzle lifts off the first bead and travels back (the scene's speed scale is the
-    fastest nozzle move). Melt torn between tip and bead used to be pulled shut at a speed
-    ~ 1/dt; the unscaled block then blew up part-way. Measured 2026-12-01 (first 0.8 s):
-    fastest melt 0.41-0.73 m/s in both runs before the closing-speed limit, 0.07 m/s with it.
+def test_collapse_and_print_take_the_coupled_solve_inertial_scenes_the_split_one():
+    """The split solve is refused where the melt creeps (the collapse at 10 Pa s and 0.5 mm:
+    nu dt / dx^2 = 2,000 at its largest step), before anything is built."""
+    from taichi_mex.errors import UserInputError
+    from taichi_mex.spec import RunSpec
 
-    Near the end of the first bead a strand of 3-6 particles at the tip's rim moves at up to
-    twice the nozzle's speed. One of them used to cross 3x and be deleted as a droplet (1 at
-    the default compression check, 2026-12-01); since that deletion was removed (2026-12-05)
-    it stays melt, and nothing may be lost."""
-    fastest, s, nozzle = _fastest_melt_in_paper_block(tmp_path)
-    assert fastest < 2.5 * nozzle
-    assert s["particles_lost"] == 0
-
-
-def test_melt_leaves_the_bore_uncompressed(tmp_path):
-    """Every slice of the bore's melt column becomes fluid as it crosses the tip plane. The
-    column takes part in the density solve, so the melt below is not packed against its lowest
-    slice, and the compression check (DFSPHOptions.compression_check, here 0.4 %) sums the
-    density at each step's new positions and solves again where melt is still compressed.
-    Over the first 35 ms of the unscaled single bead (dx = 0.1 mm: the first contact with the
-    plate and 5 released slices) the densest melt at any step stays below 0.45 %, and the
-    density the check summed is the one the next step finds.
-    Measured 2026-12-01: 0.40 % after 9 corrections, prediction within 5.4e-4 of the next
-    step's density; without the check 0.88 %, and 6.5 % with DFSPHOptions.inlet_rows off too."""
-    from taichi_mex import bundled
-    from taichi_mex.options import DFSPHOptions
-    from taichi_mex.scenes.print import PrintScene
-    from taichi_mex.core.state import FLUID
-
-    scene = PrintScene(bundled.gcode_path("single_bead"), until_s=0.345)
-    worst, moved = [], []
-
-    def largest_compression(sim, t):
-        n = sim.state.n
-        melt = sim.state.phase.to_numpy()[:n] == FLUID
-        if melt.any():
-            rho = sim.state.rho.to_numpy()[:n][melt]
-            worst.append(float(rho.max()) / sim.material.density_kg_m3 - 1.0)
-            moved.append(sim.solver.last["moved_compression"])
-
-    scene.monitor = largest_compression
-    check = 4e-3
-    sim = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, viscosity_scale=1.0,
-                                       progress=False, snapshots=False,
-                                       dfsph=DFSPHOptions(compression_check=check)),
-                     Material(), out_dir=tmp_path)
-    s = sim.run()
-    assert s["released_volume_mm3"] >= 5 * sim.inlet.n_slice * 0.1**3 - 1e-9  # mm^3
-    assert len(worst) > 50 and max(worst) < check + 5e-4
-    assert s["compression_corrections"] > 0
-    # what a step's check summed at the new positions is what the next step measures there
-    found = np.maximum(np.array(worst[1:]), 0.0)
-    assert np.abs(found - np.array(moved[:-1])).max() < 1e-3
-    # the summary's run-long figure is the same peak
-    assert s["compression_error_max_run"] == pytest.approx(max(max(worst), 0.0), rel=1e-5)
+    for scene, solve in (("collapse", "coupled"), ("print", "coupled"),
+                         ("hydrostatic", "split"), ("shear", "split")):
+        assert RunSpec.create(scene).run.dfsph.creeping_solve == solve
+    spec = RunSpec.create("collapse", changes={"run.dfsph.creeping_solve": "split"})
+    with pytest.raises(UserInputError, match=r"nu dt / dx\^2 = 2.04e\+03.*--creeping-solve coupled"):
+        Simulation.from_spec(spec)

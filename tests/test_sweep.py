@@ -140,8 +140,8 @@ def test_resolve_builds_options_and_refuses_bad_values(tmp_path):
                             ({"gcode": "nope"}, "neither a file"),
                             ({"viscosity": "thick"}, "should be a number"),
                             ({"until": 1.0, "deposit_for_s": 0.1}, "not both"),
-                            ({"run.dfsph.compression_check": 0.5}, "compression_check"),
-                            ({"run.dfsph.compression_corrections": -1}, "compression_corrections")):
+                            ({"run.dfsph.max_travel_spacings": -0.5}, "max_travel_spacings"),
+                            ({"run.dfsph.step_retries": -1}, "step_retries")):
         with pytest.raises(UserInputError, match=message):
             resolve(params)
 

@@ -38,8 +38,6 @@ LADDERS = {
             ("coupled dx=0.05 f64", {"spacing_mm": 0.05, "precision": "f64"}),
             ("coupled dx=0.05 unscaled", {"spacing_mm": 0.05, "viscosity_scale": 1.0}),
             ("coupled dx=0.033 (fine)", {"spacing_mm": 0.0333}),
-            ("split dx=0.067 (draft)", {"spacing_mm": 0.0667, "run.dfsph.creeping_solve": "split"}),
-            ("split dx=0.05 (standard)", {"spacing_mm": 0.05, "run.dfsph.creeping_solve": "split"}),
             ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
         ],
         "quick": [

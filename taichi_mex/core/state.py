@@ -168,10 +168,8 @@ class FluidIndex:
     particle spends most of its small loops skipping walls. Rebuild after every re-sort (the
     indices follow the storage order) and after phase changes."""
 
-    def __init__(self, state: ParticleState, with_inlet: bool = False):
+    def __init__(self, state: ParticleState):
         self.state = state
-        #: list the bore's melt column too (the density solve's boundary rows)
-        self.with_inlet = with_inlet
         self.index = ti.field(ti.i32, shape=state.capacity)
         #: all live particles: the solvers sum per-particle terms over this range (zero off
         #: the list), so their sums, and with them every iteration count, round as before
@@ -190,8 +188,7 @@ class FluidIndex:
         for i in range(n):
             if i % BLOCK == 0:
                 self.block_start[i // BLOCK] = count
-            ph = self.state.phase[i]
-            if ph == FLUID or (ti.static(self.with_inlet) and ph == INLET):
+            if self.state.phase[i] == FLUID:
                 self.index[count] = i
                 count += 1
         self.block_start[(n + BLOCK - 1) // BLOCK] = count

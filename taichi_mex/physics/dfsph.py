@@ -26,19 +26,26 @@ expansion: their k is held at 0). Both solves are warm-started with half of the 
 step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
 mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
 
-Tension (k < 0) is applied in the difference form sum_j V_j (k_j - k_i) grad W_ij: the
-symmetric G pulls every particle under tension towards its densest neighbours, which clumped
-28 % of the single bead's melt into pairs (SPH's tensile instability); the difference form
-feels only pressure gradients. The solves keep the symmetric system (see _release_tension).
-In creeping steps a gap closes by at most the fraction U dt / dx per step (U: the scene's
-speed scale, the fastest nozzle move): a fixed fraction per step pulls at a speed ~ 1/dt, so
-when melt torn between the lifting nozzle and the bead shortened the step, the pull grew,
-flung particles, shortened the step further, and the unscaled paper block blew up.
+This is the split solve (``--creeping-solve split``), for inertial flows: the hydrostatic
+and shear scenes default to it, and a run whose melt may creep (nu dt / dx^2 >=
+DFSPHOptions.creeping_diffusion at its largest step) is refused before it starts, since there
+solving the viscosity before the pressure leaves an error the size of the solution
+(physics/stokes.py, which solves them together and is the default). Until 2026-12-05 this
+class also carried the creeping melt of prints, held together by stabilisers no paper gives:
+tension in a difference form that does not conserve momentum, a cap on the speed at which
+tension closed gaps, compression re-solves whose k stayed out of the pressure, the bore's
+melt column as rows of the density solve. They acted only in creeping steps or on prints,
+and are gone (spec.REMOVED_OPTIONS tells an old run description so); the hydrostatic
+column's figures moved by rounding only (slope error 0.011420 -> 0.011424, 2026-12-05).
 
-The melt column in the bore is a moving boundary whose particles are rows of the density
-solve (compression only, velocity prescribed, so D G stays symmetric: a fluid particle next to
-the column feels V_j (k_i + k_j) grad W_ij). Without them the solve packed melt against the
-column's lowest slice, and each slice left the bore with up to 8 % compression.
+What stays of the stabilisers (DFSPHStabilisers) serves the inertial solve: the incremental
+pressure (last step's summed k applied with gravity, van Kan 1986) losing 5 % a step, tension
+inside the melt relaxed at 0.2 a step, and the free-surface flags. The papers' own form was
+tried on 2026-12-05: sources clamped to compression everywhere, the density solve from zero
+or from half of last step's k on the rows compressed now (as SPlisHSPlasH does), CG or
+Jacobi. The hydrostatic column then held no pressure over whole layers: with the default
+tolerances its slope was 27-44 % off rho g, and at tolerances 500x tighter the slope came
+within 3 % while the slab pressures stayed 27 % (mean) to 45 % (largest) of rho g H off.
 
 Walls here (plate, nozzle, solidified melt, the melt column in the bore) are lattices at
 the fluid's spacing and at least one support radius thick, so every wall particle stands
@@ -68,24 +75,16 @@ class DFSPH:
     """The two pressure solves. Every numerical knob is a field of ``DFSPHOptions`` (and of
     its ``stabilisers``); the reasons for their values are in the options' help and below.
 
-    Measured reasons kept from the tuning (single bead, unscaled unless said):
+    Measured reasons kept from the tuning (the single bead, before the coupled solve took
+    creeping melt):
     * density_compression_only: with tension inside the melt and no relaxation it blew up in
       every variant (CG and Jacobi, omega 0.5-1, cubic and Wendland kernels).
-    * tension_relaxation: the difference form blew up at 0.3, 0.4, 0.5 and 1.0 (46-842 steps).
-    * release_growing_only: taking back all tension left melt that still carried it pressed
-      into the plate: +1.1 % compression at the bead's bottom edge, step after step.
-    * inlet_rows: without them the solve packed melt against the column's lowest slice, and
-      each slice left the bore up to 8 % compressed (dx = 0.05 mm).
-    * correction_in_pressure: kept in the summed pressure, a compression correction's kick was
-      re-applied next step; the draft paper block's viscous solve then took 82 CG iterations
-      per step instead of 39 (43 with the correction out) over its first 1.4 s.
-    * creeping_diffusion: the difference form does not conserve momentum; the viscous solve
-      spreads that out at once in a creeping melt (single bead: nu dt / dx^2 = 650 scaled,
-      6.5e4 unscaled) but a water-like fluid (nu dt / dx^2 ~ 1) accumulated it and blew up.
+    * tension_relaxation: tension's difference form blew up at 0.3, 0.4, 0.5 and 1.0
+      (46-842 steps).
     """
 
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float,
-                 viscosity, speed_scale_m_s: float = 0.0):
+                 viscosity):
         self.state = state
         st = opts.stabilisers
         # knobs read once: the kernels specialise on them (ti.static) when they first compile
@@ -93,27 +92,19 @@ class DFSPH:
         self.method = opts.method
         self.omega = float(opts.jacobi_omega)
         self.density_compression_only = bool(opts.density_compression_only)
-        self.inlet_rows = bool(opts.inlet_rows)
-        self.inlet_row_min_coupling = float(opts.inlet_row_min_coupling)
-        self.correction_in_pressure = bool(opts.correction_in_pressure)
         rel = opts.relative_residual
         self.rel2 = 1e300 if rel is None or opts.method != "cg" else float(rel) ** 2
-        self.creeping_diffusion = float(st.creeping_diffusion)
+        self.creeping_diffusion = float(opts.creeping_diffusion)
         self.tension_relaxation = float(st.tension_relaxation)
         self.surface_offset = float(st.surface_offset_h)
         self.surface_min_neighbours = int(st.surface_min_neighbours)
         self.divergence_tension = st.divergence_tension
-        self.tension_form = st.tension_form
-        self.release_growing_only = bool(st.release_growing_only)
         self.pressure_memory_loss = float(st.pressure_memory_loss)
         self.shifting = float(st.shifting)
-        # the particles the solves loop over (fluid, and the inlet column's rows); the solver
-        # updates it after every sort and phase change
-        self.rows = FluidIndex(state, with_inlet=self.inlet_rows)
+        # the particles the solves loop over; the solver updates it after every sort and
+        # phase change
+        self.rows = FluidIndex(state)
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
-        # fastest a creeping melt's gaps close (m/s; 0: no limit)
-        scale = float(speed_scale_m_s if st.speed_scale_m_s is None else st.speed_scale_m_s)
-        self.closing_speed = float(st.closing_speed_factor) * scale
         self.grid = grid
         self.K = kernel
         self.opts = opts
@@ -130,25 +121,15 @@ class DFSPH:
         self.b = ti.field(float, shape=cap)  # source (scaled to the system's right-hand side)
         self.active = ti.field(ti.i32, shape=cap)
         self.k = ti.field(float, shape=cap)  # this solve's k
-        # the solves' CG (rows: fluid and inlet rows); its error is the mean predicted error
+        # the solves' CG; its error is the mean predicted error
         # (ref: the fluid count, Stop.scale: dt^2 or dt), its error_max the largest
         self.cg = PCG(self, self.rows, cap, dim=1, chunk=self.chunk, track_max=True)
         self.r, self.z, self.p, self.Ap = self.cg.r, self.cg.z, self.cg.p, self.cg.Ap
         self.term, self.sum = self.cg.term, self.cg.sum  # scratch for the solves' other sums
         self.Gp = ti.Vector.field(3, float, shape=cap)
         self.grad_c = ti.Vector.field(3, float, shape=cap)  # gradient of the kernel sum, for shifting
-        # 2 sum_fluid V grad W + sum_wall V grad W: what a uniform k adds to G(k)_i per unit k
-        self.grad_uniform = ti.Vector.field(3, float, shape=cap)
-        self.kappa_predicted = ti.field(float, shape=cap)  # kappa as the predictor applied it
         self.rho_peak = ti.field(float, shape=())  # densest melt at x_n (set by prepare)
-        self.rho_row = ti.field(float, shape=cap)  # density an inlet row sees (fluid's share)
-        # the density a melt particle's source starts from: rho at x_n, or, in a compression
-        # correction, the summed density at the new positions less its linear part (see
-        # correct_compression)
-        self.rho_src = ti.field(float, shape=cap)
-        self.compress_only = ti.field(ti.i32, shape=())  # 1: this solve corrects compression only
-        self.step_dt = ti.field(float, shape=())  # this step's dt (solves, moved_compression)
-        self.kappa_kept = ti.field(float, shape=cap)  # kappa before a compression correction
+        self.step_dt = ti.field(float, shape=())  # this step's dt (solves)
         self.stats = {"density_iterations": 0, "divergence_iterations": 0}
 
     # ------------------------------------------------------------------ per step
@@ -164,90 +145,43 @@ class DFSPH:
             acc[2 + d] -= w * xij[d]  # sum_j W_ij (x_j - x_i)
 
     @ti.func
-    def _inlet_row_task(self, i, j, xij, acc: ti.template()):
-        r = xij.norm()
-        w = self.V0 * self.K.W(r)
-        gV = self.V0 * self.K.F(r) * xij
-        acc[0] += w
-        acc[3] += gV.dot(gV)
-        acc[4] += 1.0
-        if self.state.phase[j] == FLUID:
-            acc[1] += w
-            acc[2] += gV.dot(gV)
-
-    @ti.func
     def _factor_task(self, i, j, xij, acc: ti.template()):
         gV = self.V0 * self.K.F(xij.norm()) * xij
         if self.state.phase[j] == FLUID:
             acc[0] += gV.dot(gV)  # only fluid neighbours move: the diagonal of D G
-        if self._two_sided(j):
-            for d in ti.static(range(3)):
-                acc[4 + d] += gV[d]
         for d in ti.static(range(3)):
             acc[1 + d] += gV[d]
 
     @ti.kernel
     def prepare(self, n: ti.i32):
-        """Densities, neighbour counts, no-tension flags and alpha at x_n.
-
-        No tension at the free surface, nor in melt touching the nozzle or the bore's melt
-        column: there it would glue the melt to the moving tip. With the symmetric G it also
-        had to stay off within a tip radius of the nozzle axis, where it clumped and blew up
-        every run; the difference form lets it act there, which keeps the melt from dilating
-        as the tip's trailing edge releases it. (Switching it off around the nozzle while it
-        travels released the accumulated tension at once and blew up the unscaled paper block
-        earlier, at 0.76 s instead of 1.37 s, before the closing-speed limit.)"""
+        """Densities, neighbour counts, no-tension flags and alpha at x_n (no tension at the
+        free surface, nor in melt touching a nozzle: there it would glue the melt to it)."""
         self.rho_peak[None] = 0.0
         for i in range(n):
             if self.state.phase[i] == FLUID:
                 acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._density_task, acc)
                 self.state.rho[i] = self.rho0 * acc[0]
-                self.rho_src[i] = self.state.rho[i]
                 ti.atomic_max(self.rho_peak[None], self.state.rho[i])
                 self.n_count[i] = ti.cast(acc[1], ti.i32)
                 offset = ti.Vector([acc[2], acc[3], acc[4]]) * self.V0 / acc[0]
                 no_tension = (offset.norm() > self.surface_offset * self.K.H
                               or acc[1] < self.surface_min_neighbours or acc[5] > 0.0)
                 self.surface[i] = 1 if no_tension else 0
-                f = ti.Vector([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+                f = ti.Vector([0.0, 0.0, 0.0, 0.0])
                 self.grid.for_each_neighbour(i, self._factor_task, f)
                 s = f[0] + f[1] * f[1] + f[2] * f[2] + f[3] * f[3]
                 self.alpha[i] = 1.0 / s if s > 0.0 else 0.0
                 self.grad_c[i] = ti.Vector([f[1], f[2], f[3]])  # grad of C = sum_j V_j W_ij
-                self.grad_uniform[i] = ti.Vector([f[1] + f[4], f[2] + f[5], f[3] + f[6]])
-            elif ti.static(self.inlet_rows) and self.state.phase[i] == INLET:
-                # A boundary row: the density it sees counts, its velocity is prescribed (no G
-                # term). Only the fluid's share can change, so the column's own overlap with
-                # the tip (up to 0.1 % over rho0) is not an error, and a row that the fluid
-                # barely reaches is left out: its k would have to be huge to move anything.
-                acc = ti.Vector([self.V0 * self.K.W0, 0.0, 0.0, 0.0, 0.0])
-                self.grid.for_each_neighbour(i, self._inlet_row_task, acc)
-                own = acc[0] - acc[1]
-                self.rho_row[i] = self.rho0 * (acc[0] - ti.max(own - 1.0, 0.0))
-                self.state.rho[i] = self.rho0  # as any wall, for the other physics
-                self.n_count[i] = ti.cast(acc[4], ti.i32)
-                self.surface[i] = 1  # compression only
-                coupled = acc[2] > 0.0 and acc[2] >= self.inlet_row_min_coupling * acc[3]
-                self.alpha[i] = 1.0 / acc[2] if coupled else 0.0
-                self.grad_uniform[i] = ti.Vector([0.0, 0.0, 0.0])
             else:
                 self.state.rho[i] = self.rho0
                 self.alpha[i] = 0.0
-                self.grad_uniform[i] = ti.Vector([0.0, 0.0, 0.0])
 
     # ------------------------------------------------------------------ operators
     @ti.func
-    def _two_sided(self, j):
-        """Neighbours whose own k enters G: fluid, and inlet rows (an inactive one has k = 0,
-        which is exactly the one-sided mirrored wall term)."""
-        ph = self.state.phase[j]
-        return ph == FLUID or (ti.static(self.inlet_rows) and ph == INLET)
-
-    @ti.func
     def _grad_task(self, i, j, xij, acc: ti.template()):
         g = self.V0 * self.K.F(xij.norm()) * xij
-        if self._two_sided(j):
+        if self.state.phase[j] == FLUID:
             acc += (self.p[i] + self.p[j]) * g
         else:
             acc += self.p[i] * g
@@ -297,17 +231,16 @@ class DFSPH:
                 div = 0.0
                 self.grid.for_each_neighbour(i, self._vdiv_task, div)
                 if ti.static(density):
-                    b = (self.rho_src[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
+                    b = (self.state.rho[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
                 else:
                     b = div / dt
                 act = 1
                 if ti.static(density):
-                    if (self.surface[i] == 1 or ti.static(self.density_compression_only)
-                            or self.compress_only[None] == 1) and b <= 0.0:
-                        act = 0  # free surface opening up, or a compression correction: no tension
+                    if (self.surface[i] == 1 or ti.static(self.density_compression_only)) and b <= 0.0:
+                        act = 0  # free surface opening up: no tension
                         b = 0.0
                     elif b < 0.0:
-                        b *= self._tension_fraction(i, dt)  # pull gaps shut over several steps
+                        b *= self.tension_relaxation  # pull gaps shut over several steps
                 else:
                     if self.n_count[i] < self.surface_min_neighbours:
                         act = 0  # too few neighbours for a divergence estimate
@@ -317,15 +250,6 @@ class DFSPH:
                         b = 0.0
                     elif ti.static(self.divergence_tension == "interior") and self.surface[i] == 1 and b <= 0.0:
                         act = 0
-                        b = 0.0
-            else:
-                if ti.static(density and self.inlet_rows) and self.state.phase[i] == INLET and self.alpha[i] > 0.0:
-                    div = 0.0
-                    self.grid.for_each_neighbour(i, self._vdiv_task, div)
-                    b = (self.rho_row[i] / self.rho0 + dt * div - 1.0) / (dt * dt)
-                    if b > 0.0:
-                        act = 1
-                    else:
                         b = 0.0
             self.b[i] = b
             self.r[i] = b  # r0 of the PCG (b = 0 off the active rows)
@@ -351,57 +275,13 @@ class DFSPH:
         gravity set the melt falling at g dt every step, which the implicit viscosity stops only
         after the step has moved it: a bead of 1000 Pa s then flattens at ~1 mm/s instead of
         creeping at rho g h^2 / eta ~ 1e-5 mm/s. A free-surface particle carries no pressure
-        (p = 0 there; stale squeeze pressure left from under the nozzle would inflate the bead)."""
+        (p = 0 there)."""
         for i in range(n):
             k = self.kappa[i] * (1.0 - self.pressure_memory_loss)
-            if self.state.phase[i] == INLET:
-                k = ti.max(k, 0.0)
-            elif self.state.phase[i] != FLUID or self.surface[i] == 1:
+            if self.state.phase[i] != FLUID or self.surface[i] == 1:
                 k = 0.0
             self.kappa[i] = k
-            self.kappa_predicted[i] = k
         self._kick(self.rows.n, dt, self.kappa)
-        if ti.static(self.tension_form == "difference"):
-            for slot in range(self.rows.n):
-                i = self.rows.index[slot]
-                if self.state.phase[i] == FLUID and self._creeping(i, dt):
-                    self.state.v[i] += dt * ti.min(self.kappa[i], 0.0) * self.grad_uniform[i]
-
-    @ti.func
-    def _tension_fraction(self, i, dt):
-        f = self.tension_relaxation
-        if ti.static(self.closing_speed > 0.0):
-            if self._creeping(i, dt):
-                f = ti.min(f, self.closing_speed * dt / self.dx)
-        return f
-
-    @ti.func
-    def _creeping(self, i, dt):
-        return self.viscosity.eta_of(i) / self.rho0 * dt >= self.creeping_diffusion * self.dx * self.dx
-
-    @ti.kernel
-    def _release_tension(self, n: ti.i32, dt: float, density: ti.template()):
-        """Take the uniform part of this solve's tension back out of the velocity.
-
-        G(k)_i = sum_j V_j (k_j - k_i) grad W_ij + k_i grad_uniform_i: the second term is the
-        only one a uniform k produces. For k > 0 it pushes particles apart towards an even
-        spacing, for k < 0 it pulls each particle towards its densest neighbours, and that is
-        what clumps melt under tension into pairs (Swegle et al. 1995). Where k < 0 we keep
-        the difference form, which feels pressure gradients only: the solves' system stays the
-        symmetric D G (CG needs it), and the small mismatch D(k_i grad_uniform_i), ~0 in
-        ordered melt, is corrected by the next step's solves."""
-        for slot in range(n):
-            i = self.rows.index[slot]
-            if self.state.phase[i] == FLUID and self._creeping(i, dt):
-                k = 0.0
-                if ti.static(density):
-                    k = ti.min(self.kappa[i], 0.0) - ti.min(self.kappa_predicted[i], 0.0)
-                    if ti.static(self.release_growing_only):
-                        k = ti.min(k, 0.0)
-                else:
-                    k = ti.min(self.kappa_v[i], 0.0)
-                self.state.v[i] += dt * k * self.grad_uniform[i]
-
     # ------------------------------------------------------------------ CG
     @ti.kernel
     def _start(self, n: ti.i32, dt: float, density: ti.template(), tol: ti.f64, tol_max: ti.f64,
@@ -515,66 +395,14 @@ class DFSPH:
         o = self.opts
         iters, err = self._solve(dt, False, o.max_divergence_error, o.max_divergence_error_local,
                                  0, o.max_iterations)
-        if self.tension_form == "difference":
-            self._release_tension(self.rows.n, dt, False)
         self.stats["divergence_iterations"] = iters
         return iters, err
 
     def density_solve(self, dt: float) -> tuple[int, float]:
         o = self.opts
-        # the relative stop (DFSPHOptions.relative_residual) outside creeping steps only: the
-        # creeping stabilisers (tension_relaxation, closing_speed_factor) were tuned on solves
-        # that stop on the absolute errors; converged, a stretched creeping column contracts
-        # at 3.5x the closing speed (tests/test_tension.py)
-        rel2 = 1e300 if self.creeping(dt) else self.rel2
         iters, err = self._solve(dt, True, o.max_density_error, o.max_density_error_local,
-                                 o.min_iterations, o.max_iterations, rel2)
-        if self.tension_form == "difference":
-            self._release_tension(self.rows.n, dt, True)
+                                 o.min_iterations, o.max_iterations, self.rel2)
         self.stats["density_iterations"] = iters
-        return iters, err
-
-    @ti.func
-    def _moved_density_task(self, i, slot, j, xij, acc: ti.template()):
-        r = (xij + self.step_dt[None] * (self.state.v[i] - self.state.v[j])).norm()
-        if r < self.K.H:
-            acc[0] += self.V0 * self.K.W(r)
-
-    @ti.kernel
-    def moved_compression(self, n: ti.i32, dt: float) -> float:
-        """Largest compression of the melt at x_n + dt v (walls moved with their velocities),
-        summed over this step's lists (no skin: a neighbour that enters the support within
-        the step adds ~W(H) = 0). Each melt particle's rho_src becomes that density less the
-        solve's linear prediction dt D(v), so that the next solve's source is the summed
-        compression itself."""
-        self.step_dt[None] = dt
-        peak = 0.0
-        for slot in range(n):
-            i = self.rows.index[slot]
-            if self.state.phase[i] == FLUID:
-                acc = ti.Vector([self.V0 * self.K.W0])
-                self.grid.for_each_listed(i, self._moved_density_task, acc)
-                div = 0.0
-                self.grid.for_each_neighbour(i, self._vdiv_task, div)
-                self.rho_src[i] = self.rho0 * (acc[0] - dt * div)
-                ti.atomic_max(peak, acc[0] - 1.0)
-        return peak
-
-    def correct_compression(self, dt: float) -> tuple[int, float]:
-        """One more density solve, from the summed density at the new positions
-        (moved_compression), on compressed melt only: it removes what the linear prediction
-        missed, an O(dt^2) error largest where the nozzle squeezes melt onto the plate.
-        The tension release is not repeated (compression only: no tension grows here), and
-        the summed pressure kappa is left as the first solve made it (correction_in_pressure)."""
-        o = self.opts
-        self.compress_only[None] = 1
-        if not self.correction_in_pressure:
-            self.kappa_kept.copy_from(self.kappa)
-        iters, err = self._solve(dt, True, o.max_density_error, 0.5 * o.compression_check,
-                                 o.min_iterations, o.max_iterations)
-        if not self.correction_in_pressure:
-            self.kappa.copy_from(self.kappa_kept)
-        self.compress_only[None] = 0
         return iters, err
 
     @ti.kernel

@@ -97,7 +97,9 @@ class HydrostaticOptions:
 def _defaults(options) -> dict:
     # EDAC's artificial sound speed: ten times the fastest free-fall speed over the column
     c = 10 * float(np.sqrt(2 * 9.81 * options.height_mm * 1e-3))
-    return {"run": {"scheme": "dfsph", "spacing_mm": 1.0, "edac": {"sound_speed_m_s": c}},
+    # an inertial column: the split solve (DFSPH)
+    return {"run": {"scheme": "dfsph", "spacing_mm": 1.0, "edac": {"sound_speed_m_s": c},
+                    "dfsph": {"creeping_solve": "split"}},
             "material": {"name": "water-like", "density_kg_m3": 1000.0, "viscosity_pa_s": 1.0,
                          "viscosity_model": "newtonian"}}
 

@@ -95,7 +95,9 @@ class ShearOptions:
 
 
 def _defaults(_options) -> dict:
-    return {"run": {"scheme": "dfsph", "spacing_mm": 0.2, "gravity_m_s2": 0.0},
+    # Stokes' first problem is inertial (nu dt / dx^2 ~ 1): the split solve
+    return {"run": {"scheme": "dfsph", "spacing_mm": 0.2, "gravity_m_s2": 0.0,
+                    "dfsph": {"creeping_solve": "split"}},
             "material": {"name": "shear fluid", "density_kg_m3": 1000.0, "viscosity_pa_s": 0.1,
                          "viscosity_model": "newtonian"}}
 

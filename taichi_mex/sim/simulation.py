@@ -90,6 +90,7 @@ class Simulation:
         self.plan = scene.plan(self.run_opts, self.material)
         self.creeping = self._creeping_numbers()
         self.viscosity_scale = self.creeping["viscosity_scale"]
+        self._check_split_solve()
         self._check_probes()
         if self.run_opts.snapshot_field == "temperature" and not (
                 self.run_opts.thermal.enabled or "thermal" in self.plan.needs):
@@ -125,6 +126,26 @@ class Simulation:
         self.history: list[dict] = []
 
     # ----------------------------------------------------------------- planning
+    def _check_split_solve(self) -> None:
+        """The split solve (DFSPH as its papers give it) is for inertial flows: where the
+        melt's steps may be creeping, splitting viscosity from pressure leaves an error the
+        size of the solution (physics/stokes.py), so such a run is refused before it starts."""
+        run = self.run_opts
+        if run.scheme != "dfsph" or run.dfsph.creeping_solve != "split":
+            return
+        m = self.material
+        nu = m.viscosity_pa_s * self.viscosity_scale / m.density_kg_m3
+        dt = self.plan.max_dt_s or run.dfsph.max_dt_s
+        ratio = nu * dt / run.spacing_m**2
+        if ratio >= run.dfsph.creeping_diffusion:
+            raise UserInputError(
+                f"The split solve is for inertial flows, and this melt creeps: at "
+                f"{m.viscosity_pa_s * self.viscosity_scale:.3g} Pa s its steps of up to "
+                f"{dt:.3g} s reach nu dt / dx^2 = {ratio:.3g}, over run.dfsph.creeping_diffusion "
+                f"= {run.dfsph.creeping_diffusion:g}, where solving viscosity before pressure "
+                "leaves an error the size of the solution. Use --creeping-solve coupled (the "
+                "default).")
+
     def _check_probes(self) -> None:
         lo, hi = self.plan.domain_lo_m * 1e3, self.plan.domain_hi_m * 1e3
         for point in self.run_opts.probes_mm:

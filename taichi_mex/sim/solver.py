@@ -119,11 +119,12 @@ class DFSPHSolver:
        viscosity (I - dt/rho A_visc) v* = v' (Weiler 2018). With the pressure in the predictor
        a melt at rest sees no net force here: its weight stays on the pressure, not on
        friction at no-slip walls, and a creeping bead does not fall at g dt per step
-    4. constant-density solve on v* for the pressure increment: v_{n+1}     (Alg. 3);
-       then the density is summed at x_n + dt v_{n+1}, and where melt is still compressed
-       more than DFSPHOptions.compression_check the solve is repeated from that density
-       (the solve itself only sees the linear prediction rho + dt D(v))
+    4. constant-density solve on v* for the pressure increment: v_{n+1}     (Alg. 3)
     5. x_{n+1} = x_n + dt v_{n+1}; the nozzle moves to t + dt
+
+    This split solve is for inertial flows (creeping_solve = 'split'; a creeping melt is
+    refused up front, Simulation._check_split_solve). With creeping_solve = 'coupled' (the
+    default) steps 2-4 are one solve of viscous stress and pressure (physics/stokes.py).
     """
 
     name = "dfsph"
@@ -132,16 +133,15 @@ class DFSPHSolver:
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
                  speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
-        """speed_scale_m_s: the scene's speed scale (its fastest nozzle move; the creeping
-        stabilisers scale with it); max_dt_s: the scene's largest step (None: the option's)."""
+        """speed_scale_m_s: the scene's speed scale (its fastest nozzle move; unused here);
+        max_dt_s: the scene's largest step (None: the option's)."""
         self.state = state
         self.hooks = hooks
         self.opts = run.dfsph
         # a scene of slow creeping flow may allow longer steps than a print
         self.max_dt = float(max_dt_s or run.dfsph.max_dt_s)
         self.fluid = FluidIndex(state)
-        self.dfsph = DFSPH(state, grid, kernel, run.dfsph, rho0, run.spacing_m, viscosity,
-                           speed_scale_m_s)
+        self.dfsph = DFSPH(state, grid, kernel, run.dfsph, rho0, run.spacing_m, viscosity)
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(state, grid, kernel, viscosity, self.particle_mass, rho0,
@@ -161,9 +161,7 @@ class DFSPHSolver:
         self.dx = run.spacing_m
         self.halvings = 0
         # solves stopped by their iteration cap (each makes its step be redone)
-        self.unconverged = {"divergence": 0, "viscosity": 0, "pressure": 0,
-                            "compression correction": 0, "coupled": 0}
-        self.corrections = 0
+        self.unconverged = {"divergence": 0, "viscosity": 0, "pressure": 0, "coupled": 0}
         cap = state.capacity
         self.saved_v = ti.Vector.field(3, float, shape=cap)
         self.saved_k = ti.Vector.field(2, float, shape=cap)
@@ -276,18 +274,6 @@ class DFSPHSolver:
             with h.phase("density solve"):
                 ip, err = d.density_solve(dt)
             converged["pressure"] = d.cg.converged()
-            moved = None
-            if self.opts.compression_check is not None:
-                with h.phase("compression check"):
-                    moved = d.moved_compression(d.rows.n, dt)
-                    for _ in range(self.opts.compression_corrections):
-                        if moved <= self.opts.compression_check:
-                            break
-                        ic, err = d.correct_compression(dt)
-                        converged["compression correction"] = d.cg.converged()
-                        ip += ic
-                        self.corrections += 1
-                        moved = d.moved_compression(d.rows.n, dt)
             self.totals["viscosity_iterations"] += ik
             self.totals["density_iterations"] += ip
             vmax = float(d.max_fluid_speed(n))
@@ -317,9 +303,7 @@ class DFSPHSolver:
         # it (a run may then skip a span in which nothing drives the melt)
         self.creeping_now = bool(d.creeping(dt))
         self.last = {"density_iterations": ip, "viscosity_iterations": ik, "density_error": err,
-                     "viscosity_residual": res, "dt": dt,
-                     # the densest melt this step leaves, summed at the new positions
-                     "moved_compression": moved}
+                     "viscosity_residual": res, "dt": dt}
         with h.phase("nozzle and inlet"):
             h.move_boundaries(t + dt)
         return dt
@@ -430,7 +414,6 @@ class DFSPHSolver:
             "viscosity_residual_worst": self.worst["viscosity_residual"],
             "time_step_halvings": self.halvings,
             "unconverged_solves_redone": dict(self.unconverged),
-            "compression_corrections": self.corrections,
             "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
             # the inner viscous iterations of the block-triangular preconditioner
             "stokes_inner_iterations_per_step": self.totals["stokes_inner_iterations"] / steps,
