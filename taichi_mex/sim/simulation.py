@@ -36,7 +36,8 @@ _TEMP_FACTOR = 2.0
 #: runs (validation/windows);
 #: dfsph-coupled-traction: the same solve with the free surface's traction, several times
 #: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
-#: two other runs, 2026-12-03)
+#: two other runs, 2026-12-03; with its steps set by the melt's motion, 2026-12-05, 21-29 s
+#: for 54-67 steps at 0.5 mm and 285 s for 114 steps at 0.3 mm, alone)
 MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 6.0e5,
                        "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
@@ -51,9 +52,11 @@ COUPLED_RATE_EXPONENT = 1.3
 STARTUP_S = 10.0
 #: measured wall time / estimate: the DFSPH rate is an older single-bead rate (the default
 #: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve's ladder
-#: and benchy's window came out at 1.0-1.3x theirs (validation/trade, before 8c21d14)
+#: and benchy's window came out at 1.0-1.3x theirs (validation/trade, before 8c21d14); with
+#: the surface traction, earlier runs at 1.3-1.5x and the collapse, its steps set by its
+#: motion, at 0.4-1.0x (0.5 to 0.3 mm, 2026-12-05)
 ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.5),
-                   "dfsph-coupled-traction": (1.3, 1.5)}
+                   "dfsph-coupled-traction": (0.4, 1.5)}
 
 
 def available_memory_bytes() -> int:
