@@ -346,7 +346,7 @@ class EDACOptions:
 class DFSPHStabilisers:
     """Stabilisers of the split solve (DFSPH) that come from no cited paper, kept for the
     inertial scenes it still serves (hydrostatic, shear): without the incremental pressure and
-    its interior tension the papers' solve left the hydrostatic column's pressure 27-44 % off
+    its interior tension the papers' solve left the hydrostatic column's pressure 23-53 % off
     (physics/dfsph.py). A creeping melt, for which the others were added, takes the coupled
     solve; the split solve refuses it (run.dfsph.creeping_diffusion). None deletes or clamps
     melt; the creeping-only ones (the closing-speed cap, tension's difference form and its

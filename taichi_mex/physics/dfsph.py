@@ -22,8 +22,9 @@ may oscillate; so we solve the same system by conjugate gradients (the shared ``
 preconditioned with alpha, clamping only at the free surface (particles whose kernel-weighted
 neighbourhood centre is offset by more than surface_offset_h H (0.15), or with fewer than
 surface_min_neighbours (20) neighbours, and whose source is an
-expansion: their k is held at 0). Both solves are warm-started with half of the previous
-step's summed k (Bender & Koschier, Sec. 4.4) and stop when the mean predicted error,
+expansion: their k is held at 0). The divergence solve is warm-started with half of the
+previous step's k (Bender & Koschier, Sec. 4.4), the density solve is incremental
+(``pressure_predictor``); both stop when the mean predicted error,
 mean |source - A k| dt^2 (density) or dt (divergence), is below the tolerance.
 
 This is the split solve (``--creeping-solve split``), for inertial flows: the hydrostatic
@@ -44,8 +45,10 @@ inside the melt relaxed at 0.2 a step, and the free-surface flags. The papers' o
 tried on 2026-12-05: sources clamped to compression everywhere, the density solve from zero
 or from half of last step's k on the rows compressed now (as SPlisHSPlasH does), CG or
 Jacobi. The hydrostatic column then held no pressure over whole layers: with the default
-tolerances its slope was 27-44 % off rho g, and at tolerances 500x tighter the slope came
-within 3 % while the slab pressures stayed 27 % (mean) to 45 % (largest) of rho g H off.
+tolerances its slope was 23-53 % off rho g over those variants (warm-started with all of
+last step's k on every row, it expanded by 19 %), and from a cold start at tolerances 500x
+tighter the slope came within 3 % while the slab pressures stayed 27 % (mean) to 45 %
+(largest) of rho g H off.
 
 Walls here (plate, nozzle, solidified melt, the melt column in the bore) are lattices at
 the fluid's spacing and at least one support radius thick, so every wall particle stands
