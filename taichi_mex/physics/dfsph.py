@@ -61,7 +61,7 @@ import numpy as np
 
 from taichi_mex.backend import ti
 from taichi_mex.core.pcg import PCG, Stop
-from taichi_mex.core.state import FLUID, INLET, NOZZLE, FluidIndex
+from taichi_mex.core.state import FLUID, INLET, NOZZLE
 
 
 def rest_volume(kernel, spacing_m: float) -> float:
@@ -87,7 +87,9 @@ class DFSPH:
     """
 
     def __init__(self, state, grid, kernel, opts, rho0: float, spacing_m: float,
-                 viscosity):
+                 viscosity, rows):
+        """rows: the FluidIndex the solves loop over; its owner updates it after every sort
+        and phase change."""
         self.state = state
         st = opts.stabilisers
         # knobs read once: the kernels specialise on them (ti.static) when they first compile
@@ -104,9 +106,7 @@ class DFSPH:
         self.divergence_tension = st.divergence_tension
         self.pressure_memory_loss = float(st.pressure_memory_loss)
         self.shifting = float(st.shifting)
-        # the particles the solves loop over; the solver updates it after every sort and
-        # phase change
-        self.rows = FluidIndex(state)
+        self.rows = rows
         self.viscosity = viscosity  # the melt's MeltViscosity: which steps are creeping
         self.grid = grid
         self.K = kernel

@@ -141,7 +141,9 @@ class DFSPHSolver:
         # a scene of slow creeping flow may allow longer steps than a print
         self.max_dt = float(max_dt_s or run.dfsph.max_dt_s)
         self.fluid = FluidIndex(state)
-        self.dfsph = DFSPH(state, grid, kernel, run.dfsph, rho0, run.spacing_m, viscosity)
+        # the split solve's rows are the fluid index the viscosity and coupled solves use
+        self.dfsph = DFSPH(state, grid, kernel, run.dfsph, rho0, run.spacing_m, viscosity,
+                           self.fluid)
         self.particle_mass = self.dfsph.mass
         self.g = ti.Vector([0.0, 0.0, -float(run.gravity_m_s2)])
         self.visc = ImplicitViscosity(state, grid, kernel, viscosity, self.particle_mass, rho0,
@@ -250,8 +252,7 @@ class DFSPHSolver:
         self._record_peak(float(d.rho_peak[None]) / d.rho0 - 1.0)
         with h.phase("heat"):
             h.heat_step(dt)  # at x_n, with this step's lists and densities
-        self.fluid.update()  # after solidification too
-        d.rows.update()
+        self.fluid.update()  # after solidification too (the split solve's rows too)
         self._save(n)
         if self.stokes is not None:
             return self._coupled_step(t, dt, n)
@@ -382,7 +383,6 @@ class DFSPHSolver:
         n = self.state.n
         self.dfsph.prepare(n)
         self.fluid.update()
-        self.dfsph.rows.update()
         res = self.stokes.solve(dt, self.dfsph.kappa, self.gravity, compressible=False,
                                 extrapolate=False)
         return replace(res, wall_s=time.perf_counter() - t0)
