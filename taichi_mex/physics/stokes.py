@@ -251,6 +251,25 @@ where v_n alone keeps it: over benchy's whole window the extrapolated start had 
 flung faster than 4x the nozzle, not fewer iterations (validation/windows, 2026-12-04). Not
 the default, then.
 
+Restart: GMRES keeps stokes_restart Krylov vectors (200 by default, stored by melt row) and
+starts again from its iterate when they run out; a restart throws the space away, and a solve
+that needs several cycles loses the superlinear convergence the whole space would give it
+(restarted GMRES can stagnate where the full one converges: Saad, Iterative Methods for
+Sparse Linear Systems, 2nd ed., SIAM 2003, ch. 6).
+Solves that took hundreds of iterations at the earlier 40 were restart-bound, not
+preconditioner-bound (measured 2026-12-05, 2 cores): the bore flow at 8 per radius under
+Weiler's sum had not converged in 20,000 iterations (1,321 s) and converges in 193 (35 s) at
+200, with the traction 202 against 600 (36 against 118 s), the same profile; the collapse at
+R = H = 3 mm, 0.2 mm, 1 Pa s to 1.5 s 102 / 465 GMRES / inner a step at 120 against 189 / 770
+at 40, 269 against 400 s, the same front to four digits. Tried there before this was seen,
+and not kept: SIMPLE's Schur approximation solved by an inner conjugate-gradient solve in
+place of its diagonal (halved the late steps' iterations at 40, the same as the diagonal's at
+120: 140 / 117 against 135 / 121, at ~3 extra pressure passes an iteration), a tighter inner
+viscous tolerance (0.1: 312 s at 40), and a two-level inner solve with the translations of
+aggregates of 6^3 spacings as its coarse space (264 / 157 against 344 / 268 at 40). Prints
+need no long restart (the draft bead: 18 a step, the same at 40 and 120) and pay nothing for
+it: their melt is a few thousand of their 36,000-107,000 particles.
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -310,11 +329,13 @@ class CoupledStokes:
                        "on_cpu", "serial_rows")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
-                 spacing_m: float, rows, opts, bulk_modulus_pa: float | None = None):
+                 spacing_m: float, rows, opts, bulk_modulus_pa: float | None = None,
+                 rows_capacity: int | None = None):
         """viscosity: the melt's MeltViscosity; viscous: the ImplicitViscosity whose pair
         coefficients L uses; rows: a FluidIndex over the melt; opts: the run's DFSPHOptions
         (its stokes_* fields); bulk_modulus_pa: the melt's K (None or the option off:
-        incompressible)."""
+        incompressible); rows_capacity: the most melt rows a solve can have (None: every
+        particle), the length of the Krylov vectors, which are stored by row."""
         self.state = state
         self.grid = grid
         self.K = kernel
@@ -380,7 +401,12 @@ class CoupledStokes:
         # against 143 ms, Gram-Schmidt 0.60 against 0.37 ms a pass; 2026-12-04)
         vec4 = lambda: ti.Vector.field(4, ti.f64, shape=cap)  # noqa: E731
         self.X, self.rhs, self.w, self.z = vec4(), vec4(), vec4(), vec4()
-        self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap))
+        # the restart's m + 1 vectors (three sets with the criterion's norm and the flexible
+        # preconditioner) by melt row: on benchy's window 107,121 particles hold a few thousand
+        # melt rows, and sized by particle they took most of the run's memory
+        self.rows_cap = min(int(rows_capacity), cap) if rows_capacity else cap
+        rcap = self.rows_cap
+        self.basis = ti.Vector.field(4, ti.f64, shape=(self.m + 1, rcap))
         self.ghost = ti.Vector.field(3, ti.f64, shape=cap)  # Shepard melt velocity at a wall
         self.werr = ti.Vector.field(3, ti.f64, shape=cap)  # momentum residual less dt G(dk)
         self.shepard = ti.field(ti.f64, shape=cap)  # sum_j W_bj over the melt
@@ -395,7 +421,7 @@ class CoupledStokes:
         # the criterion's norm: T w and every basis vector's image T v_l, and the density
         # criterion's weight c in T (see "Norm")
         self.tw = ti.Vector.field(4, ti.f64, shape=cap if self.exact else 1)
-        self.tb = ti.Vector.field(4, ti.f64, shape=(self.m + 1, cap) if self.exact else (1, 1))
+        self.tb = ti.Vector.field(4, ti.f64, shape=(self.m + 1, rcap) if self.exact else (1, 1))
         self.crho = ti.field(ti.f64, shape=())
         self.dt = ti.field(ti.f64, shape=())
         self.block = 256
@@ -431,7 +457,8 @@ class CoupledStokes:
         # GMRES keeps them, the preconditioner being an inner iterative solve) and the inner
         # conjugate-gradient solve's vectors
         inner = cap if self.flexible else 1
-        self.Zb = ti.Vector.field(4, ti.f64, shape=(self.m if self.flexible else 1, inner))
+        self.Zb = ti.Vector.field(4, ti.f64, shape=(self.m if self.flexible else 1,
+                                                    rcap if self.flexible else 1))
         vec3 = lambda: ti.Vector.field(3, ti.f64, shape=inner)  # noqa: E731
         self.cg_x, self.cg_r, self.cg_p, self.cg_q, self.cg_z = vec3(), vec3(), vec3(), vec3(), vec3()
         self.kpart = ti.field(ti.f64, shape=inner)  # the preconditioned vector's k
@@ -1324,6 +1351,9 @@ class CoupledStokes:
         incompressible rows whatever the option (a quasi-static solve: a steady state).
         extrapolate=False: start from v_n, and void the history (a solve that is no step)."""
         n = self.rows.n
+        if n > self.rows_cap:
+            raise RuntimeError(f"{n} melt rows exceed the {self.rows_cap} the coupled solve was "
+                               "sized for: only the inlet makes melt, and the plan counts it")
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
         inner = 0
         S = self.serial(n)

@@ -19,7 +19,7 @@ import numpy as np
 from taichi_mex import backend
 from taichi_mex.options import RESOLUTION_PRESETS, Material, RunOptions, to_dict
 from taichi_mex.errors import SimulationDiverged, UserInputError
-from taichi_mex.core.state import FLUID, PHASE_NAMES, PLATE, SOLID
+from taichi_mex.core.state import FLUID, NOZZLE, PHASE_NAMES, PLATE, SOLID
 
 log = logging.getLogger("taichi_mex")
 
@@ -219,6 +219,10 @@ class Simulation:
                     bore_r, 0.5 * spec.tip_outer_diameter_m, dx, column_slices(H, dx),
                     spec.flank_angle_deg, spec.body_height_m))
         capacity = int(1.02 * (initial + inflow + inlet_extra)) + 64
+        # only the inlet turns particles into melt: plate, nozzle and solid never melt, so the
+        # rest bounds the melt rows of the coupled solve, whose Krylov vectors are stored by row
+        walls = sum(len(b.position_m) for b in self.plan.blocks if b.phase in (PLATE, NOZZLE, SOLID))
+        melt_capacity = max(capacity - walls, 64)
         ext = self.plan.domain_hi_m - self.plan.domain_lo_m
         n_cells = int(np.prod(np.ceil(2 * ext / H)))  # cells of half the support radius
         fp = 8 if run.precision == "f64" else 4
@@ -237,10 +241,13 @@ class Simulation:
             m = run.dfsph.stokes_restart
             # GMRES's inner product: T of each basis vector and of w
             weights = (m + 2) * 32 if run.dfsph.stokes_norm == "criterion" else 0
-            per_particle += (2 * m + 1) * 32 + weights + 8 * max_nbr + 680
+            per_particle += 8 * max_nbr + 680
+            per_melt = (2 * m + 1) * 32 + weights
             if run.dfsph.stokes_initial_guess == "extrapolated":
                 per_particle += 3 * fp
         memory = capacity * per_particle + 8 * n_cells
+        if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
+            memory += melt_capacity * per_melt
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
         dt, limits = self._dt_guess(H)
@@ -263,7 +270,8 @@ class Simulation:
                 f"Explicit viscosity (eta = {self.material.viscosity_pa_s:g} Pa s) limits the time "
                 f"step to {limits['viscous']:.3g} s, {limits['cfl'] / limits['viscous']:.0f}x below "
                 "the CFL limit; the implicit solver (--scheme dfsph) removes this limit.")
-        return {"warnings": warn, "dt_limits_s": limits, "particles": initial + inflow, "capacity": capacity, "grid_cells": n_cells,
+        return {"warnings": warn, "dt_limits_s": limits, "particles": initial + inflow, "capacity": capacity,
+                "melt_capacity": melt_capacity, "grid_cells": n_cells,
                 "memory_bytes": memory, "simulated_time_s": span, "dt_estimate_s": dt,
                 "list_skin": skin,
                 "idle_s": idle,
@@ -420,7 +428,8 @@ class Simulation:
         self.solver = SOLVERS[run.scheme](self.state, self.grid, self.kernel, self.viscosity,
                                           self.material.density_kg_m3, run, hooks,
                                           self.plan.speed_scale_m_s, self.plan.max_dt_s,
-                                          material=self.material)
+                                          material=self.material,
+                                          melt_capacity=self.estimate["melt_capacity"])
         if self.plan.drive is not None:
             if getattr(self.solver, "stokes", None) is None:
                 raise UserInputError(f"The {self.plan.name} scene drives its melt by a body force "

@@ -60,7 +60,8 @@ class EDACSolver:
     name = "edac"
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None,
+                 melt_capacity: int | None = None):
         self.state = state
         self.hooks = hooks
         self.viscosity = viscosity
@@ -132,9 +133,12 @@ class DFSPHSolver:
     cached_per_neighbour = 1
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None,
+                 melt_capacity: int | None = None):
         """speed_scale_m_s: the scene's speed scale (its fastest nozzle move; unused here);
-        max_dt_s: the scene's largest step (None: the option's)."""
+        max_dt_s: the scene's largest step (None: the option's); melt_capacity: the most melt
+        particles the run can hold (None: all of them), which sizes the coupled solve's
+        Krylov vectors."""
         self.state = state
         self.hooks = hooks
         self.opts = run.dfsph
@@ -155,7 +159,7 @@ class DFSPHSolver:
             bulk = material.bulk_modulus_pa if material is not None else None
             self.stokes = CoupledStokes(state, grid, kernel, viscosity, self.visc, rho0,
                                         self.dfsph.V0, run.spacing_m, self.fluid, run.dfsph,
-                                        bulk_modulus_pa=bulk)
+                                        bulk_modulus_pa=bulk, rows_capacity=melt_capacity)
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
         self.retries = int(run.dfsph.step_retries)
@@ -447,7 +451,8 @@ class StaticSolver:
     name = "static"
 
     def __init__(self, state, grid, kernel, viscosity, rho0: float, run, hooks: StepHooks,
-                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None):
+                 speed_scale_m_s: float = 0.0, max_dt_s: float | None = None, material=None,
+                 melt_capacity: int | None = None):
         self.hooks = hooks
         self.max_dt = float(max_dt_s or 1.0)
 
