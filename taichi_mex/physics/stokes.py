@@ -114,7 +114,8 @@ Caswell 1974), the streamline from the lip, the particle count and continuity ag
 and the count read 1.111 and 1.074: the jet carries three quarters of the die's flux.
 Two things keep it out of prints for now, both measured: Adami's ghost walls slip more under
 it (bore flow 6.4 / 4.9 / 2.7 % of u_max at 4 / 6 / 8 per radius against 1.7 / 4.6 % with
-Weiler's sum, which does not converge at 8 in 20,000 iterations where this form takes 600;
+Weiler's sum, which did not converge at 8 in 20,000 iterations at a restart of 40 where
+this form took 600; at 200 they take 193 and 202, see "Restart";
 at 4 the profile sits 0.08 u_max over Poiseuille's throughout; the
 ghost's Shepard average stands for the melt's velocity at the wall particle's mirror image,
 which it is for the first wall layer only, yet continuing the melt's velocity linearly to the
