@@ -233,11 +233,12 @@ class Simulation:
         max_nbr = self._max_neighbours(factor * (1.0 + skin))
         cached = getattr(SOLVERS[run.scheme], "cached_per_neighbour", 0)  # reals per list slot
         per_particle = int(_TEMP_FACTOR * 40 * fp + (4 + cached * fp) * max_nbr)
+        per_melt = 0  # bytes per melt row: the coupled solve's Krylov vectors
         if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
-            # physics/stokes.py, in f64: the Krylov basis (restart + 1 4-vectors) and the
-            # flexible GMRES's preconditioned vectors (restart), a cached coefficient per list
-            # slot, about 20 vectors and matrices of scratch (680 bytes), and the extrapolated
-            # initial guess's previous velocities
+            # physics/stokes.py, in f64: per melt row the Krylov basis (restart + 1 4-vectors)
+            # and the flexible GMRES's preconditioned vectors (restart); per particle a cached
+            # coefficient per list slot, about 20 vectors and matrices of scratch (680 bytes),
+            # and the extrapolated initial guess's previous velocities
             m = run.dfsph.stokes_restart
             # GMRES's inner product: T of each basis vector and of w
             weights = (m + 2) * 32 if run.dfsph.stokes_norm == "criterion" else 0
@@ -245,9 +246,7 @@ class Simulation:
             per_melt = (2 * m + 1) * 32 + weights
             if run.dfsph.stokes_initial_guess == "extrapolated":
                 per_particle += 3 * fp
-        memory = capacity * per_particle + 8 * n_cells
-        if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
-            memory += melt_capacity * per_melt
+        memory = capacity * per_particle + melt_capacity * per_melt + 8 * n_cells
         span = max(self.plan.t_end_s - self.plan.t_start_s, 0.0)
         idle = sum(b - a for a, b in self.plan.idle_windows) if self.run_opts.skip_idle else 0.0
         dt, limits = self._dt_guess(H)
