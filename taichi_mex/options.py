@@ -520,6 +520,17 @@ class DFSPHOptions:
     stokes_inner_max_iterations: int = opt(
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
         "iterations per outer iteration", check=Range(1, 10**5, integer=True))
+    stokes_inner_operator: str = opt(
+        "weiler2018", help="coupled solve, block_triangular, with the surface traction: the "
+        "operator the inner viscous solve inverts. 'weiler2018': Weiler's pair sum, one pass "
+        "over the melt an iteration; 'system': the system's own viscous block, the "
+        "strain-energy form (four passes, ~6x the cost an iteration). On the collapse at "
+        "0.2 mm (1 Pa s, R = H = 4 mm, 2 cores, 2026-12-05) 'system' took 61-65 GMRES "
+        "iterations a step on the thin current at t = 0.6 s against 572-671, 3.5x less time a "
+        "step, but ~100 against ~70 on the tall cylinder of the first steps, 7x more time a "
+        "step (physics/stokes.py, \"block-triangular preconditioner\"). Without the traction "
+        "both are Weiler's sum",
+        check=OneOf("weiler2018", "system"), flag="--stokes-inner-operator")
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "

@@ -371,6 +371,17 @@ CASES = {
             "--creeping-solve", "coupled"))],
         COMMON + HUPPERT + COUPLED_SOLVE,
         folder="collapse", tag="coupled_fine"),
+    "collapse_coupled_02": Case(
+        "the issue's 0.2 mm collapse (R = H = 4 mm, 1 Pa s, 3 s), the inner viscous solve on the "
+        "system's own block (--stokes-inner-operator system)",
+        [("0.2 mm, 1 Pa s, 3 s, coupled, inner: system", scene(
+            "collapse", *CYLINDER, "--viscosity", 1, "--spacing-mm", 0.2, "--until", 3,
+            "--stokes-inner-operator", "system"))],
+        [("0.5 mm, 1 Pa s, 0.5 s, coupled, inner: system", scene(
+            "collapse", *CYLINDER, "--viscosity", 1, "--spacing-mm", 0.5, "--until", 0.5,
+            "--stokes-inner-operator", "system"))],
+        COMMON + HUPPERT + COUPLED_SOLVE,
+        folder="collapse", tag="coupled_02"),
     "windows": Case(
         "a real slicer's part: benchy (PrusaSlicer, pyGCodeDecode's example), layer 3, the 4 x 4 mm "
         "window 88-92 mm x 88-92 mm at draft, the coupled solve (the split one, measured beside it "

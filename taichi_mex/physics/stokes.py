@@ -17,7 +17,8 @@ Operators (V: the rest volume, F(r) x = grad W):
 * L: Weiler et al.'s (2018) viscosity operator, L(u)_i = sum_j c_ij F ((u_i - u_j) . x_ij) x_ij
   with c_ij = d mu_ij (m_j / rho_j) / rho_i / (r^2 + 0.01 H^2) and d calibrated on the lattice
   (physics/viscosity_weiler2018.py); with the free surface's traction, the strain-energy form
-  below, and Weiler's operator only inside the preconditioner;
+  below, and Weiler's operator only inside the preconditioner (or not even there:
+  stokes_inner_operator = 'system', "block-triangular preconditioner" below);
 * or (option stokes_viscous_operator) with Morris, Fox & Zhu's (1997) Laplacian in it,
   L(u)_i = sum_j c'_ij F r^2 (u_i - u_j), the whole velocity difference rather than its
   projection on the link (physics/viscosity_morris1997.py): 'morris1997' that alone,
@@ -379,6 +380,9 @@ class CoupledStokes:
         self.c2inv[None] = self.inv_c2
         self.flexible = opts.stokes_preconditioner == "block_triangular"
         self.inner_tol = float(opts.stokes_inner_tolerance)
+        # the inner solve's operator (see "block-triangular preconditioner"): the system's own
+        # viscous block (with the traction, the strain-energy form) or Weiler's pair sum
+        self.inner_energy = self.traction and opts.stokes_inner_operator == "system"
         self.inner_max = int(opts.stokes_inner_max_iterations)
         cap = state.capacity
         # free-surface traction, the strain-energy form (see "Free surface"): per particle the
@@ -832,6 +836,24 @@ class CoupledStokes:
     # twice (Adami's ghost, u_b = 2 v_b - u~_b, with u~_b ~ u_i), without the free-surface
     # correction; an inner solve varies with its right-hand side, hence flexible GMRES
     # (Saad, SIAM J. Sci. Comput. 14, 1993), which keeps each preconditioned basis vector.
+    # With the surface traction the momentum block is the strain-energy form, not Weiler's
+    # sum, and A~ differs from it most where the corrected gradient does, in the surface's
+    # layers (Bonet & Lok's correction up to 10x there). Option stokes_inner_operator =
+    # 'system' makes the inner solve invert the form itself: it is the Hessian of a
+    # dissipation, ghosts and hourglass term included, so symmetric and at least the identity
+    # (tests/test_stokes.py checks both and that it is the system's block), and the inner
+    # CG takes its 3 x 3 diagonal blocks as preconditioner. Measured on the collapse at 0.2 mm
+    # (R = H = 4 mm, 1 Pa s, 25,280 melt rows; 2026-12-05, 2 cores, beside other runs), GMRES
+    # iterations a step, inner tolerance 0.3 / run to 3e-3:
+    #     thin current (t = 0.605 s, dt 7.4 ms):  Weiler's 572-671 / 330-344, the form 61-65 / 53-57
+    #     tall cylinder (t = 0, two steps):         Weiler's ~76 / 68-73,     the form ~99
+    # The form's iteration is four passes over the melt against Weiler's one (34 against ~5 ms
+    # there), so a step took 3.5x less time on the thin current (23 against 81 s) and 4.7x more
+    # on the tall cylinder (41 against 8.7 s). The 0.5 mm collapse (10 Pa s, 30 s): 49 / 289
+    # GMRES / inner a step against 47 / 139. So it is an option, not the default. Tried and
+    # not kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
+    # two or three iterations): 98-110 a step on the tall cylinder, 1,556 on the thin current
+    # (Weiler's sum is no spectrally close stand-in for the form there).
     # Measured (2026-12-02, 2 cores): bore flow at 4 per radius 6.2 s against 31.5 s with the
     # block diagonal; 8 per radius converges (it did not in 20,000 iterations). Tried and not
     # kept: BiCGStab on the whole momentum block (traction and ghosts included) as the inner
@@ -965,35 +987,69 @@ class CoupledStokes:
                     acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     self.grid.for_each_listed(i, self._inner_task, acc)
                     self.cg_q[slot] = self.cg_p[i] - self.dt[None] * acc
-            self._inner_blocks(n, 1, S)
-            ti.loop_config(serialize=True)
-            for _ in range(1):
-                if self.cg_done[None] == 0:
-                    pq = self.total[None]
-                    if pq > 0.0:
-                        self.alpha[None] = self.cg_rz[None] / pq
-                    else:
-                        self.cg_done[None] = 1
-            ti.loop_config(serialize=S)
-            for slot in range(n):
-                if self.cg_done[None] == 0:
-                    i = self.rows.index[slot]
-                    alpha = self.alpha[None]
-                    self.cg_x[slot] += alpha * self.cg_p[i]
-                    r = self.cg_r[slot] - alpha * self.cg_q[slot]
-                    self.cg_r[slot] = r
-                    self.cg_z[slot] = self.Binv_in[slot] @ r
-            self._inner_blocks(n, 0, S)
-            ti.loop_config(serialize=True)
-            for _ in range(1):
-                if self.cg_done[None] == 0:
-                    rz, rz_old = self.total[None], self.cg_rz[None]
-                    self.cg_rz[None] = rz
-                    self.cg_beta[None] = rz / rz_old
-                    self.cg_it[None] += 1
-                    if not (rz > 0.0 and self.cg_it[None] < max_it and rz > tol2 * self.cg_rz0[None]):
-                        self.cg_done[None] = 1
+            self._inner_step(n, tol2, max_it, S)
         return self.cg_done[None]
+
+    @ti.kernel
+    def _inner_iteration_energy(self, n: ti.i32, tol2: ti.f64, max_it: ti.i32,
+                                S: ti.template()) -> ti.i32:
+        """One inner iteration on the strain-energy form's momentum block (with the surface
+        traction), the system's own viscous operator: q = p - dt L(p), L with Adami's ghosts
+        and the hourglass term as _apply has them (its four passes over the melt: one launch
+        an iteration, so that none is spent after the stop). z carries p's velocity meanwhile;
+        _inner_finish puts z back."""
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            p = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
+            self.cg_p[i] = p
+            self.z[i] = ti.Vector([p[0], p[1], p[2], 0.0])
+        ti.loop_config(serialize=S)
+        for wslot in range(self.n_walls[None]):
+            b = self.wall_row[wslot]
+            acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            self.grid.for_each_neighbour(b, self._ghost_task, acc)
+            self.ghost[b] = acc
+        if ti.static(self.traction):
+            self._energy(n, S)
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.cg_q[slot] = self.cg_p[i] - self.dt[None] * self.eacc[i]
+        self._inner_step(n, tol2, max_it, S)
+        return self.cg_done[None]
+
+    @ti.func
+    def _inner_step(self, n, tol2, max_it, S: ti.template()):
+        """The rest of an inner iteration once q = A~ p: alpha, x, r, z, beta and the stop."""
+        self._inner_blocks(n, 1, S)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.cg_done[None] == 0:
+                pq = self.total[None]
+                if pq > 0.0:
+                    self.alpha[None] = self.cg_rz[None] / pq
+                else:
+                    self.cg_done[None] = 1
+        ti.loop_config(serialize=S)
+        for slot in range(n):
+            if self.cg_done[None] == 0:
+                i = self.rows.index[slot]
+                alpha = self.alpha[None]
+                self.cg_x[slot] += alpha * self.cg_p[i]
+                r = self.cg_r[slot] - alpha * self.cg_q[slot]
+                self.cg_r[slot] = r
+                self.cg_z[slot] = self.Binv_in[slot] @ r
+        self._inner_blocks(n, 0, S)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            if self.cg_done[None] == 0:
+                rz, rz_old = self.total[None], self.cg_rz[None]
+                self.cg_rz[None] = rz
+                self.cg_beta[None] = rz / rz_old
+                self.cg_it[None] += 1
+                if not (rz > 0.0 and self.cg_it[None] < max_it and rz > tol2 * self.cg_rz0[None]):
+                    self.cg_done[None] = 1
 
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32, S: ti.template()):
@@ -1014,7 +1070,10 @@ class CoupledStokes:
         tol2 = self.inner_tol ** 2
         done = self._inner_begin(n, j, self.inner_max, S)
         while not done:
-            done = self._inner_iterations(n, tol2, self.inner_max, S)
+            if self.inner_energy:
+                done = self._inner_iteration_energy(n, tol2, self.inner_max, S)
+            else:
+                done = self._inner_iterations(n, tol2, self.inner_max, S)
         self._inner_finish(n, j, S)
         return int(self.cg_it[None])
 
@@ -1095,6 +1154,8 @@ class CoupledStokes:
                                                  + a.outer_product(a)) \
                     - self.hourglass * self._square(acc, 0)
                 self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) + dt * blk).inverse()
+                if ti.static(self.inner_energy):
+                    self.Binv_in[slot] = self.Binv[i]  # the inner solve's operator is this form too
             else:
                 self.Binv[i] = weiler
                 mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
