@@ -786,17 +786,23 @@ class CoupledStokes:
             acc[6] += ui.dot(gi)
 
     @ti.func
-    def _apply(self, n, out: ti.template(), S: ti.template()):
-        """out = A z on the melt rows (z: the preconditioned vector)."""
+    def _viscous_of_z(self, n, S: ti.template()):
+        """The walls' Shepard sums of z's melt velocities (their ghosts) and, with the surface
+        traction, eacc = the strain-energy form's L of z's velocity."""
         ti.loop_config(serialize=S)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.grid.for_each_neighbour(b, self._ghost_task, acc)
             self.ghost[b] = acc
-        dt = self.dt[None]
         if ti.static(self.traction):
             self._energy(n, S)
+
+    @ti.func
+    def _apply(self, n, out: ti.template(), S: ti.template()):
+        """out = A z on the melt rows (z: the preconditioned vector)."""
+        self._viscous_of_z(n, S)
+        dt = self.dt[None]
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
@@ -1004,14 +1010,7 @@ class CoupledStokes:
             p = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
             self.cg_p[i] = p
             self.z[i] = ti.Vector([p[0], p[1], p[2], 0.0])
-        ti.loop_config(serialize=S)
-        for wslot in range(self.n_walls[None]):
-            b = self.wall_row[wslot]
-            acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-            self.grid.for_each_neighbour(b, self._ghost_task, acc)
-            self.ghost[b] = acc
-        if ti.static(self.traction):
-            self._energy(n, S)
+        self._viscous_of_z(n, S)
         ti.loop_config(serialize=S)
         for slot in range(n):
             i = self.rows.index[slot]
