@@ -525,9 +525,9 @@ class DFSPHOptions:
         "operator the inner viscous solve inverts. 'weiler2018': Weiler's pair sum, one pass "
         "over the melt an iteration; 'system': the system's own viscous block, the "
         "strain-energy form (four passes, ~6x the cost an iteration). On the collapse at "
-        "0.2 mm (1 Pa s, R = H = 4 mm, 2 cores, 2026-12-05) 'system' took 61-65 GMRES "
-        "iterations a step on the thin current at t = 0.6 s against 572-671, 3.5x less time a "
-        "step, but ~100 against ~70 on the tall cylinder of the first steps, 7x more time a "
+        "0.2 mm (1 Pa s, R = H = 4 mm, 2 cores, 2026-12-05) 'system' took 45 GMRES "
+        "iterations a step on the thin current at t = 0.6 s against 566, 6.2x less time a "
+        "step, but 96 against 71 on the tall cylinder of the first steps, 5.6x more time a "
         "step (physics/stokes.py, \"block-triangular preconditioner\"). Without the traction "
         "both are Weiler's sum",
         check=OneOf("weiler2018", "system"), flag="--stokes-inner-operator")

@@ -387,7 +387,7 @@ class CoupledStokes:
         cap = state.capacity
         # free-surface traction, the strain-energy form (see "Free surface"): per particle the
         # corrected gradient's inverse moment matrix, the stress 2 nu D of the vector being
-        # multiplied, a wall's adjoint sum, the resulting acceleration, its constant part
+        # multiplied (stored times that inverse, see _energy), a wall's adjoint sum, the resulting acceleration, its constant part
         # from the walls' velocities, and Weiler's diagonal blocks for the inner solve
         shape = cap if self.traction else 1
         self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=shape)
@@ -679,17 +679,20 @@ class CoupledStokes:
             x = -ti.cast(xbj, ti.f64)
             zi = self.z[j]
             e = ti.Vector([zi[0], zi[1], zi[2]]) - self._wall_velocity(b) - self.Ag[j] @ x
-            acc += self.T[j] @ self._c(j, -xbj) + self._hg_coef(j, b, x.norm_sqr()) * e.dot(x) * x
+            gV = self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x
+            acc += self.T[j] @ gV + self._hg_coef(j, b, x.norm_sqr()) * e.dot(x) * x
 
     @ti.func
     def _divergence_task(self, k, slot, j, xkj, acc: ti.template()):
-        """acc[0:3]: sum_j c_kj; acc[3:6]: -sum_i T_i c_ik + the walls' ghost terms."""
+        """acc[0:3]: sum_j V grad W_kj; acc[3:6]: -sum_i T_i c_ik + the walls' ghost terms
+        (T here is T M^-1: c_ik = -M_i^-1 V grad W_ki)."""
         r2 = xkj.norm_sqr()
         if r2 < self.K.H * self.K.H and r2 > 0.0:
-            c = self._c(k, xkj)
+            x = ti.cast(xkj, ti.f64)
+            c = self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x  # as _c: the same F bits
             f = ti.Vector.zero(ti.f64, 3)
             if self.state.phase[j] == FLUID:
-                f = -(self.T[j] @ self._c(j, -xkj))
+                f = self.T[j] @ c
             elif self.shepard[j] > 0.0:
                 w = ti.cast(self.K.W(ti.sqrt(r2)), ti.f64)
                 f = w / self.shepard[j] * self.q[j]
@@ -715,7 +718,9 @@ class CoupledStokes:
             T = nu * (A + A.transpose())
             acc = ti.Vector.zero(ti.f64, 12)
             self.grid.for_each_listed(i, self._hourglass_task, acc)
-            self.T[i] = T + self._square(acc, 0)
+            # stored times M_i^-1: every later read multiplies a kernel gradient by T_i M_i^-1
+            # (c_ij = M_i^-1 V grad W_ij), one 3 x 3 read a pair instead of two
+            self.T[i] = (T + self._square(acc, 0)) @ self.Minv[i]
             self.hg[i] = ti.Vector([acc[9], acc[10], acc[11]])
         ti.loop_config(serialize=S)
         for wslot in range(self.n_walls[None]):
@@ -853,10 +858,12 @@ class CoupledStokes:
     # iterations a step, inner tolerance 0.3 / run to 3e-3:
     #     thin current (t = 0.605 s, dt 7.4 ms):  Weiler's 572-671 / 330-344, the form 61-65 / 53-57
     #     tall cylinder (t = 0, two steps):         Weiler's ~76 / 68-73,     the form ~99
-    # The form's iteration is four passes over the melt against Weiler's one (34 against ~5 ms
-    # there), so a step took 3.5x less time on the thin current (23 against 81 s) and 4.7x more
-    # on the tall cylinder (41 against 8.7 s). The 0.5 mm collapse (10 Pa s, 30 s): 49 / 289
-    # GMRES / inner a step against 47 / 139. So it is an option, not the default. Tried and
+    # The form's iteration is four passes over the melt against Weiler's one: 13-16 ms against
+    # about 3. Alone on 2 cores (a step each after compilation, 2026-12-05): the thin current
+    # (dt 14.6 ms) 45 / 351 GMRES / inner iterations and 6.4 s against 566 / 1,274 and 39.6 s
+    # with Weiler's, the tall cylinder 96 / 1,239 and 19.1 s against 71 / 488 and 3.4 s. The
+    # 0.5 mm collapse (10 Pa s, 30 s): 49 / 289 GMRES / inner a step against 47 / 139; the
+    # squeeze film 29 / 120 against 24 / 61. So it is an option, not the default. Tried and
     # not kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
     # two or three iterations): 98-110 a step on the tall cylinder, 1,556 on the thin current
     # (Weiler's sum is no spectrally close stand-in for the form there).
