@@ -387,8 +387,8 @@ class CoupledStokes:
         cap = state.capacity
         # free-surface traction, the strain-energy form (see "Free surface"): per particle the
         # corrected gradient's inverse moment matrix, the stress 2 nu D of the vector being
-        # multiplied (stored times that inverse, see _energy), a wall's adjoint sum, the resulting acceleration, its constant part
-        # from the walls' velocities, and Weiler's diagonal blocks for the inner solve
+        # multiplied (stored times that inverse, see _energy), a wall's adjoint sum, the
+        # resulting acceleration and its constant part from the walls' velocities
         shape = cap if self.traction else 1
         self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=shape)
         self.Ag = ti.Matrix.field(3, 3, ti.f64, shape=shape)
@@ -420,7 +420,8 @@ class CoupledStokes:
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
-        # Weiler's diagonal blocks, the inner solve's preconditioner, by row (not particle):
+        # the inner solve's preconditioner, by row (not particle): the diagonal blocks of the
+        # operator it inverts (Weiler's sum's, or with stokes_inner_operator = 'system' Binv):
         # read once a row per inner iteration, they stream in order
         self.Binv_in = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         # the criterion's norm: T w and every basis vector's image T v_l, and the density
@@ -605,10 +606,16 @@ class CoupledStokes:
             self.Minv[i] = Minv
 
     @ti.func
+    def _gV(self, xij):
+        """V grad W(x_i - x_j) in f64, uncorrected (every pass evaluates F alike: the form's
+        symmetry holds to the bit)."""
+        x = ti.cast(xij, ti.f64)
+        return self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x
+
+    @ti.func
     def _c(self, i, xij):
         """c_ij = M_i^-1 V grad W(x_i - x_j)."""
-        x = ti.cast(xij, ti.f64)
-        return self.Minv[i] @ (self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x)
+        return self.Minv[i] @ self._gV(xij)
 
     @ti.func
     def _wall_velocity(self, b):
@@ -679,8 +686,7 @@ class CoupledStokes:
             x = -ti.cast(xbj, ti.f64)
             zi = self.z[j]
             e = ti.Vector([zi[0], zi[1], zi[2]]) - self._wall_velocity(b) - self.Ag[j] @ x
-            gV = self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x
-            acc += self.T[j] @ gV + self._hg_coef(j, b, x.norm_sqr()) * e.dot(x) * x
+            acc += self.T[j] @ self._gV(-xbj) + self._hg_coef(j, b, x.norm_sqr()) * e.dot(x) * x
 
     @ti.func
     def _divergence_task(self, k, slot, j, xkj, acc: ti.template()):
@@ -688,8 +694,7 @@ class CoupledStokes:
         (T here is T M^-1: c_ik = -M_i^-1 V grad W_ki)."""
         r2 = xkj.norm_sqr()
         if r2 < self.K.H * self.K.H and r2 > 0.0:
-            x = ti.cast(xkj, ti.f64)
-            c = self.V * ti.cast(self.K.F(x.norm()), ti.f64) * x  # as _c: the same F bits
+            c = self._gV(xkj)
             f = ti.Vector.zero(ti.f64, 3)
             if self.state.phase[j] == FLUID:
                 f = self.T[j] @ c
