@@ -528,16 +528,18 @@ class DFSPHOptions:
         "0.2 mm (1 Pa s, R = H = 4 mm, 2 cores, 2026-12-05) 'system' took 45 GMRES "
         "iterations a step on the thin current at t = 0.6 s against 566, 6.2x less time a "
         "step, but 96 against 71 on the tall cylinder of the first steps, 5.6x more time a "
-        "step (physics/stokes.py, \"block-triangular preconditioner\"). Without the traction "
-        "both are Weiler's sum",
+        "step (physics/stokes.py, \"block-triangular preconditioner\"). Refused where it "
+        "would change nothing: without the traction both are Weiler's sum, and "
+        "block_diagonal has no inner solve",
         check=OneOf("weiler2018", "system"), flag="--stokes-inner-operator")
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "
         "whose boundary term is the pressure's, physics/stokes.py); off: Weiler's pair sum, "
-        "whose surface carries no viscous flux. Off in a print by default: the bundled bead "
-        "runs with it but comes out 1.49x as wide and rises 0.12 mm over the gap behind the "
-        "nozzle, at 8x the cost",
+        "whose surface carries no viscous flux. Off in a print by default: with it the bundled "
+        "bead comes out 1.5x as wide at draft and at standard, its particles drifting apart "
+        "where the corrected divergence does not see it (physics/stokes.py), at 3.4-5.1x the "
+        "cost with stokes_inner_operator = 'system' (2026-12-05)",
         check=Flag(),
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
         flag_help="coupled solve: Weiler's pair sum at the free surface, which carries no viscous "
@@ -721,6 +723,21 @@ class RunOptions:
                 "pair sum's viscous term, which the surface traction's strain-energy form "
                 "replaces: turn run.dfsph.stokes_surface_traction off (--no-surface-traction), "
                 "or keep 'weiler2018'.")
+        if d.stokes_inner_operator == "system":
+            # the inner solve exists only in the coupled solve's block-triangular
+            # preconditioner, and without the traction the system's block is Weiler's sum:
+            # a setting that changes nothing is refused rather than recorded as if it had
+            inert = [why for why, off in (
+                ("the run does not use the coupled solve (--creeping-solve coupled, --scheme "
+                 "dfsph)", self.scheme != "dfsph" or d.creeping_solve != "coupled"),
+                ("run.dfsph.stokes_preconditioner is 'block_diagonal', which has no inner "
+                 "solve", d.stokes_preconditioner != "block_triangular"),
+                ("run.dfsph.stokes_surface_traction is off, so the system's viscous block is "
+                 "Weiler's sum already", not d.stokes_surface_traction)) if off]
+            if inert:
+                raise UserInputError(
+                    "run.dfsph.stokes_inner_operator = 'system' changes nothing here: "
+                    + "; ".join(inert) + ". Keep 'weiler2018', or change what is named.")
 
 
 PAPER_PRESET = {

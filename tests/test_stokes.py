@@ -158,6 +158,22 @@ def test_the_inner_solve_multiplies_by_the_systems_own_viscous_block():
     assert np.sum(p1 * q1) > np.sum(p1 * p1)  # I - dt L: at least the identity
 
 
+def test_an_inner_operator_that_would_change_nothing_is_refused():
+    """stokes_inner_operator = 'system' acts only in the coupled solve's block-triangular
+    preconditioner with the surface traction; elsewhere it is refused up front, naming what
+    makes it inert, rather than written into the run's description as if it had acted."""
+    from taichi_mex.errors import UserInputError
+
+    for changes, said in (({"run.dfsph.stokes_surface_traction": False}, "traction is off"),
+                          ({"run.dfsph.stokes_preconditioner": "block_diagonal"},
+                           "no inner solve"),
+                          ({"run.dfsph.creeping_solve": "split"}, "coupled solve")):
+        with pytest.raises(UserInputError, match=f"'system' changes nothing here: .*{said}"):
+            RunSpec.create("squeeze-film", changes={"run.dfsph.stokes_inner_operator": "system",
+                                                    **changes})
+    RunSpec.create("squeeze-film", changes={"run.dfsph.stokes_inner_operator": "system"})
+
+
 def _by_particle(st, field):
     """A vector the solve stores by row (slot), such as w, laid out by particle."""
     n = st.rows.n

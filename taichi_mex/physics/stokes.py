@@ -125,7 +125,26 @@ nearest melt, moved the squeeze film's force by 0.3 % and made the bore's stairc
 13 %: tried, not kept), and the bundled bead (draft) runs to its end without a halving
 but comes out 1.49x the slicer's width with melt 0.12 mm over the gap behind the nozzle and
 kernel sums down to 0.56 rho0 at its surface, at 177 GMRES / 1,790 inner iterations a step
-(47 / 249 with Weiler's) and 8.4x the wall time.
+(47 / 249 with Weiler's) and 8.4x the wall time. With the inner solve on the form itself
+(stokes_inner_operator = 'system', 2026-12-05, alone on 2 cores) it costs 3.4-5.1x: the
+draft bead 96 s against 28 s without the traction (23 / 92 against 18 / 46 GMRES / inner a
+step), the standard bead 305 s against 60 s. The shape keeps it out: 0.678 mm wide at draft and
+0.667 mm at standard (1.51x and 1.48x the slicer's 0.450 mm), the interior melt's kernel
+sums 1.9 and 2.6 % under rho0 on average (0.8 % without the traction). The melt's particles
+drift apart. The continuity rows hold the corrected divergence at zero, and that is not the
+rate of change of the kernel sum (the uncorrected divergence is): with no density source the
+draft bead's interior kernel sums drifted 10 % on average, the densest 76 % over rho0, and the compression-only source removes one side of that drift only. Tried that day, draft
+bead (width, interior kernel sums' mean error) and die swell at 4 per radius (the
+streamline's swell, Nickell's 1.13), none kept:
+* D and G uncorrected (the form unchanged): 0.535 mm, 0.8 %; swell 1.226: the discrete
+  traction-free condition needs the pressure's boundary term to be the form's;
+* D uncorrected, G corrected: 0.548 mm, 1.0 %; swell 1.155 (continuity's reading 1.21);
+* D less its inconsistency, D_plain - sym(A_i) : (I - M_i) with A_i the corrected velocity
+  gradient: equal to the corrected D on linear fields, so the swell stays 1.130, and it
+  sees the particle-scale modes the corrected D cannot; 0.661 mm, 1.8 %: not those modes;
+* particle shifting after each step, -A dx |u| dt grad C with A = 2 (Skillen, Lind, Stansby
+  & Rogers, CMAME 265, 2013), tangential only where Marrone's test (physics/surface.py) flags
+  the surface or its next layer: 0.584 mm, 4.2 %.
 
 Compressibility: the continuity rows are the melt's rate form of p = K (rho / rho0 - 1),
 dt D(u) - (k - k_n) / c^2 = dt s with c^2 = K / rho0 (material.bulk_modulus_pa; Tait's law
