@@ -133,7 +133,8 @@ step), the standard bead 305 s against 60 s. The shape keeps it out: 0.678 mm wi
 sums 1.9 and 2.6 % under rho0 on average (0.8 % without the traction). The melt's particles
 drift apart. The continuity rows hold the corrected divergence at zero, and that is not the
 rate of change of the kernel sum (the uncorrected divergence is): with no density source the
-draft bead's interior kernel sums drifted 10 % on average, the densest 76 % over rho0, and the compression-only source removes one side of that drift only. Tried that day, draft
+draft bead's interior kernel sums drifted 10 % on average, the densest 76 % over rho0, and
+the compression-only source removes one side of that drift only. Tried that day, draft
 bead (width, interior kernel sums' mean error) and die swell at 4 per radius (the
 streamline's swell, Nickell's 1.13), none kept:
 * D and G uncorrected (the form unchanged): 0.535 mm, 0.8 %; swell 1.226: the discrete
