@@ -537,9 +537,9 @@ class DFSPHOptions:
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "
         "whose boundary term is the pressure's, physics/stokes.py); off: Weiler's pair sum, "
         "whose surface carries no viscous flux. Off in a print by default: with it the bundled "
-        "bead comes out 1.5x as wide at draft and at standard, its particles drifting apart "
-        "where the corrected divergence does not see it (physics/stokes.py), at 3.4-5.1x the "
-        "cost with stokes_inner_operator = 'system' (2026-12-05)",
+        "bead comes out 1.5x as wide at draft and at standard, for a reason not yet found "
+        "(physics/stokes.py has what was measured and tried), at 3.4-5.1x the cost with "
+        "stokes_inner_operator = 'system' (2026-12-05)",
         check=Flag(),
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
         flag_help="coupled solve: Weiler's pair sum at the free surface, which carries no viscous "

@@ -130,9 +130,10 @@ kernel sums down to 0.56 rho0 at its surface, at 177 GMRES / 1,790 inner iterati
 draft bead 96 s against 28 s without the traction (23 / 92 against 18 / 46 GMRES / inner a
 step), the standard bead 305 s against 60 s. The shape keeps it out: 0.678 mm wide at draft and
 0.667 mm at standard (1.51x and 1.48x the slicer's 0.450 mm), the interior melt's kernel
-sums 1.9 and 2.6 % under rho0 on average (0.8 % without the traction). The melt's particles
-drift apart. The continuity rows hold the corrected divergence at zero, and that is not the
-rate of change of the kernel sum (the uncorrected divergence is): with no density source the
+sums 1.9 and 2.6 % under rho0 on average (0.8 % without the traction): its particles
+drift apart, though that is not what makes it wide (last item below). The continuity rows
+hold the corrected divergence at zero, and that is not the rate of change of the kernel sum
+(the uncorrected divergence is): with no density source the
 draft bead's interior kernel sums drifted 10 % on average, the densest 76 % over rho0, and
 the compression-only source removes one side of that drift only. Tried that day, draft
 bead (width, interior kernel sums' mean error) and die swell at 4 per radius (the
@@ -145,7 +146,13 @@ streamline's swell, Nickell's 1.13), none kept:
   sees the particle-scale modes the corrected D cannot; 0.661 mm, 1.8 %: not those modes;
 * particle shifting after each step, -A dx |u| dt grad C with A = 2 (Skillen, Lind, Stansby
   & Rogers, CMAME 265, 2013), tangential only where Marrone's test (physics/surface.py) flags
-  the surface or its next layer: 0.584 mm, 4.2 %.
+  the surface or its next layer: 0.584 mm, 4.2 %;
+* the kernel sum's source both ways on the particles Marrone's test calls interior (flag 0),
+  compression only elsewhere: the interior held (0.09 % at draft, 0.06 % at standard) and
+  the strand still 0.665 / 0.642 mm wide (draft / standard, 1.48x / 1.43x). So the drift
+  inside the melt does not make the width: the surface's layers (a third of the standard
+  bead's melt under 0.9 rho0 with this source, 41 % without) or the traction's flow itself
+  does, and which one is open.
 
 Compressibility: the continuity rows are the melt's rate form of p = K (rho / rho0 - 1),
 dt D(u) - (k - k_n) / c^2 = dt s with c^2 = K / rho0 (material.bulk_modulus_pa; Tait's law
