@@ -711,8 +711,8 @@ class RunOptions:
     def validate(self) -> None:
         validate_fields(self, "run.")
         d = self.dfsph
-        if d.stokes_viscous_operator != "weiler2018" and (self.scheme != "dfsph"
-                                                          or d.creeping_solve != "coupled"):
+        coupled = self.scheme == "dfsph" and d.creeping_solve == "coupled"
+        if d.stokes_viscous_operator != "weiler2018" and not coupled:
             raise UserInputError(
                 f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "
                 "coupled solve's viscous term; this run does not use the coupled solve: add "
@@ -729,7 +729,7 @@ class RunOptions:
             # a setting that changes nothing is refused rather than recorded as if it had
             inert = [why for why, off in (
                 ("the run does not use the coupled solve (--creeping-solve coupled, --scheme "
-                 "dfsph)", self.scheme != "dfsph" or d.creeping_solve != "coupled"),
+                 "dfsph)", not coupled),
                 ("run.dfsph.stokes_preconditioner is 'block_diagonal', which has no inner "
                  "solve", d.stokes_preconditioner != "block_triangular"),
                 ("run.dfsph.stokes_surface_traction is off, so the system's viscous block is "
