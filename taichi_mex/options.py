@@ -521,17 +521,20 @@ class DFSPHOptions:
         100, help="coupled solve, block_triangular: cap on the inner viscous solve's "
         "iterations per outer iteration", check=Range(1, 10**5, integer=True))
     stokes_inner_operator: str = opt(
-        "weiler2018", help="coupled solve, block_triangular, with the surface traction: the "
+        "auto", help="coupled solve, block_triangular, with the surface traction: the "
         "operator the inner viscous solve inverts. 'weiler2018': Weiler's pair sum, one pass "
         "over the melt an iteration; 'system': the system's own viscous block, the "
-        "strain-energy form (four passes, ~6x the cost an iteration). On the collapse at "
-        "0.2 mm (1 Pa s, R = H = 4 mm, 2 cores, 2026-12-05) 'system' took 45 GMRES "
-        "iterations a step on the thin current at t = 0.6 s against 566, 6.2x less time a "
-        "step, but 96 against 71 on the tall cylinder of the first steps, 5.6x more time a "
-        "step (physics/stokes.py, \"block-triangular preconditioner\"). Refused where it "
-        "would change nothing: without the traction both are Weiler's sum, and "
-        "block_diagonal has no inner solve",
-        check=OneOf("weiler2018", "system"), flag="--stokes-inner-operator")
+        "strain-energy form, four passes an iteration but far fewer GMRES iterations where "
+        "the free surface is much of the melt (the collapse at 0.2 mm: 45 against 566 a step "
+        "on the thin current, 96 against 71 on the tall cylinder). 'auto': each solve takes "
+        "the operator whose latest solve cost fewer passes over the melt, and tries the other "
+        "again once the one in use costs twice what it did when chosen (counts, not timings: "
+        "a run makes the same choices every time); on that collapse it ran Weiler's for 97 "
+        "steps and the form for the last 72 (physics/stokes.py, \"block-triangular "
+        "preconditioner\"). 'system' is refused where it would change nothing (without the "
+        "traction both are Weiler's sum; block_diagonal has no inner solve); 'auto' is "
+        "Weiler's sum there",
+        check=OneOf("weiler2018", "system", "auto"), flag="--stokes-inner-operator")
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "

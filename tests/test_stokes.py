@@ -174,6 +174,41 @@ def test_an_inner_operator_that_would_change_nothing_is_refused():
     RunSpec.create("squeeze-film", changes={"run.dfsph.stokes_inner_operator": "system"})
 
 
+def test_auto_inner_operator_tries_each_then_takes_the_cheaper():
+    """stokes_inner_operator = 'auto' changes which operator the inner solve inverts, not the
+    answer: its first solve is Weiler's (the same bits as 'weiler2018'), its second the
+    strain-energy form's, and from then on each solve takes the operator whose latest solve
+    cost fewer passes over the melt, or the other once the one in use costs twice what it did
+    when chosen (counts, not timings: a run makes the same choices every time)."""
+    from taichi_mex.physics.stokes import ENERGY_INNER_PASSES, KRYLOV_SWEEP_PASSES, OUTER_PASSES
+
+    fixed = _solve(_film(1000.0, **{"run.dfsph.stokes_inner_operator": "weiler2018"}, **TIGHT))
+    sim = _film(1000.0, **{"run.dfsph.stokes_inner_operator": "auto"}, **TIGHT)
+    st = sim.solver.stokes
+    assert st.inner_auto and not st.inner_energy
+    res, _, v, force = _solve(sim)
+    assert res.converged and np.array_equal(v, fixed[2]) and np.array_equal(force, fixed[3])
+    assert st.inner_solves == {False: 1, True: 0}
+    g = res.iterations  # in one GMRES cycle: Gram-Schmidt went over 1 + 2 + ... + g vectors
+    assert g < st.m and st.inner_work[False] == pytest.approx(
+        OUTER_PASSES * g + res.inner_iterations + KRYLOV_SWEEP_PASSES * g * (g + 1) / 2)
+    assert st.inner_energy  # the form, not yet tried, is next
+    # the rule on given counts: the cheaper latest solve wins
+    st._choose_inner(10, 100)  # the form: 6 * 10 + 4 * 100 passes
+    assert st.inner_work[True] == OUTER_PASSES * 10 + ENERGY_INNER_PASSES * 100
+    assert st.inner_energy == (st.inner_work[True] < st.inner_work[False])
+    st.inner_energy = False
+    st._choose_inner(10**4, 0)  # Weiler's solve now costs more than the form's last
+    assert st.inner_energy and st.inner_solves == {False: 2, True: 1}
+    # a count goes stale: the form is left once it costs twice its first solve since chosen
+    # (460 passes), though Weiler's last count (60,000) is higher still
+    st._choose_inner(10, 100)
+    st._choose_inner(10, 200)  # 860 passes
+    assert st.inner_energy
+    st._choose_inner(10, 250)  # 1,060
+    assert not st.inner_energy
+
+
 def _by_particle(st, field):
     """A vector the solve stores by row (slot), such as w, laid out by particle."""
     n = st.rows.n

@@ -63,6 +63,15 @@ def read_bench_collapse(out: Path) -> list[dict]:
     return [{**r, "label": r["code"]} for r in rows]
 
 
+def inner_choice(r: dict) -> str:
+    """Our coupled solve's iterations a step and how many solves each inner operator served."""
+    solves = r.get("stokes_inner_operator_solves") or {}
+    if r.get("code") != "taichi_mex" or r.get("stokes_iterations_per_step") is None:
+        return ""
+    return (f"{r['stokes_iterations_per_step']:.0f} / {r['stokes_inner_iterations_per_step']:.0f}; "
+            f"{solves.get('weiler2018', 0)} / {solves.get('system', 0)}")
+
+
 def read_bench(out: Path) -> list[dict]:
     """Our row, then PySPH's runs of the same command (OpenMP, one core), each with ours / it."""
     result = json.loads((out / "bench.json").read_text())
@@ -326,6 +335,16 @@ GPU = [("run", lambda r: r["label"]),
         if r.get("phase_seconds") else ""),
        ("same physics?", _melt_check)]
 
+PEER_COLLAPSE_COLUMNS = [
+    ("code", lambda r: r["code"] + (" **(stopped)**" if r.get("stopped") else "")),
+    ("particles", num("particles")), ("steps", num("steps")),
+    ("simulated s", num("simulated_s", "{:.3g}")),
+    ("wall s", num("wall_s", "{:.1f}")), ("CPU s", num("cpu_s", "{:.1f}")),
+    ("other processes' CPU s", num("others_cpu_s", "{:.1f}")),
+    ("Huppert K^(1/8) ratio", num("huppert_coefficient_ratio", "{:.3f}")),
+    ("radius ratio, second half", num("huppert_radius_ratio_late", "{:.3f}")),
+    ("SPlisHSPlasH / ours wall", num("ratio", "{:.1f}x"))]
+
 CASES = {
     "hydrostatic": Case(
         "water-like column (8 x 8 x 12 mm) at rest: slab-mean pressure against rho g depth",
@@ -522,15 +541,17 @@ CASES = {
         [("collapse", ["bench", "collapse", "--json", "{out}/bench.json"])],
         [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8, "--until", 0.1,
                                       "--json", "{out}/bench.json"])],
-        [("code", lambda r: r["code"] + (" **(stopped)**" if r.get("stopped") else "")),
-         ("particles", num("particles")), ("steps", num("steps")),
-         ("simulated s", num("simulated_s", "{:.3g}")),
-         ("wall s", num("wall_s", "{:.1f}")), ("CPU s", num("cpu_s", "{:.1f}")),
-         ("other processes' CPU s", num("others_cpu_s", "{:.1f}")),
-         ("Huppert K^(1/8) ratio", num("huppert_coefficient_ratio", "{:.3f}")),
-         ("radius ratio, second half", num("huppert_radius_ratio_late", "{:.3f}")),
-         ("SPlisHSPlasH / ours wall", num("ratio", "{:.1f}x"))],
-        read=read_bench_collapse, folder="peer", tag="collapse"),
+        PEER_COLLAPSE_COLUMNS, read=read_bench_collapse, folder="peer", tag="collapse"),
+    "peer_collapse_02": Case(
+        "the issue's collapse (0.2 mm, 3 s) side by side: ours (inner operator 'auto', the "
+        "default) and SPlisHSPlasH 2.19 at its 1e-4 s step, one after the other in one command",
+        [("collapse, 0.2 mm, 3 s", ["bench", "collapse", "--spacing-mm", 0.2, "--until", 3,
+                                    "--json", "{out}/bench.json"])],
+        [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8, "--until", 0.1,
+                                      "--json", "{out}/bench.json"])],
+        PEER_COLLAPSE_COLUMNS + [
+            ("ours: GMRES / inner a step; solves on Weiler's / the form", inner_choice)],
+        read=read_bench_collapse, folder="peer", tag="collapse_02"),
     "blocks": Case(
         "the seed paper's 3 x 3 block (paper_block_3x3.gcode, 0.4 mm layers), DFSPH, the whole 2.23 s",
         [(f"{res}, {'unscaled' if off else 'auto'}",

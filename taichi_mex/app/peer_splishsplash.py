@@ -302,7 +302,10 @@ def run_ours(case_args: dict, threads: int | None, timeout_s: float, echo=print)
          "huppert_coefficient_ratio": s.get("front_coefficient_ratio"),
          "huppert_radius_ratio_late": s.get("front_ratio_late"),
          "growth_exponent_late": s.get("front_exponent_late"),
-         "front_r_end_m": (s.get("front_r_m") or [None])[-1], "exit_code": rc}
+         "front_r_end_m": (s.get("front_r_m") or [None])[-1], "exit_code": rc,
+         "stokes_iterations_per_step": s.get("stokes_iterations_per_step"),
+         "stokes_inner_iterations_per_step": s.get("stokes_inner_iterations_per_step"),
+         "stokes_inner_operator_solves": s.get("stokes_inner_operator_solves")}
     if isinstance(s.get("error"), str):  # a run that stopped (blow-up, unconverged solve)
         r["stopped"] = s["error"]
     elif rc != 0 or not s:

@@ -316,6 +316,19 @@ log = logging.getLogger(__name__)
 
 #: the coupled solve's viscous pair terms: the weight of Morris's isotropic term in each, the
 #: rest Weiler's projected one (see "Operators")
+#: passes over the melt's neighbour lists (walls' passes counted as whole ones): a GMRES
+#: iteration of the block-triangular preconditioner (the inner solve's G(k) and the
+#: operator's product: the walls' ghosts, the strain-energy form's three passes and one of
+#: its own), and an inner iteration on the strain-energy form (ghosts, three, its walls'
+#: adjoint sums); one on Weiler's sum is one pass
+OUTER_PASSES = 6
+ENERGY_INNER_PASSES = 4
+#: a GMRES iteration's Gram-Schmidt over one earlier Krylov vector (twice: dots and update),
+#: in passes: fitted to the collapse at 0.2 mm (steps of 48 and 121 GMRES iterations a
+#: solve, 2.2 and 8.2 s, 2 cores, 2026-12-05; 2.0 ms a pass, 0.69 ms a vector), where
+#: Weiler's inner operator's long solves spend more on these sweeps than on their passes
+KRYLOV_SWEEP_PASSES = 1.0 / 3.0
+
 VISCOUS_OPERATORS = {"weiler2018": 0.0, "morris1997": 1.0, "espanol_revenga2003": 0.5}
 
 
@@ -409,7 +422,16 @@ class CoupledStokes:
         self.inner_tol = float(opts.stokes_inner_tolerance)
         # the inner solve's operator (see "block-triangular preconditioner"): the system's own
         # viscous block (with the traction, the strain-energy form) or Weiler's pair sum
-        self.inner_energy = self.traction and opts.stokes_inner_operator == "system"
+        # ('auto': per step, see "block-triangular preconditioner"); the next solve's choice
+        mode = opts.stokes_inner_operator if self.traction else "weiler2018"
+        self.inner_auto = mode == "auto"
+        self.inner_energy = mode == "system"
+        # per inner operator (energy form or not): the work of its latest solve, in passes
+        # over the melt (None: not yet tried), and the solves that used it
+        self.inner_work = {False: None, True: None}
+        self.inner_solves = {False: 0, True: 0}
+        # per inner operator: its first solve's work since it was last chosen ('auto')
+        self.inner_ref = {False: None, True: None}
         self.inner_max = int(opts.stokes_inner_max_iterations)
         cap = state.capacity
         # free-surface traction, the strain-energy form (see "Free surface"): per particle the
@@ -895,8 +917,18 @@ class CoupledStokes:
     # (dt 14.6 ms) 45 / 351 GMRES / inner iterations and 6.4 s against 566 / 1,274 and 39.6 s
     # with Weiler's, the tall cylinder 96 / 1,239 and 19.1 s against 71 / 488 and 3.4 s. The
     # 0.5 mm collapse (10 Pa s, 30 s): 49 / 289 GMRES / inner a step against 47 / 139; the
-    # squeeze film 29 / 120 against 24 / 61. So it is an option, not the default. Tried and
-    # not kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
+    # squeeze film 29 / 120 against 24 / 61. So neither operator serves a whole run. With
+    # 'auto' each solve picks: each operator is tried once (the first two solves), then a
+    # solve takes the one whose latest solve cost fewer passes over the melt's neighbour lists
+    # (OUTER_PASSES a GMRES iteration, 4 or 1 an inner iteration, KRYLOV_SWEEP_PASSES for
+    # each earlier Krylov vector Gram-Schmidt goes over: counts, so a run makes the same
+    # choices every time, whatever the machine's speed).
+    # A count goes stale as the flow changes: the operator in use is also left once its
+    # solves cost twice what they did when it was chosen (its first solve then), so each
+    # doubling of the cost tries the other again. Without that rule the 0.2 mm collapse
+    # kept Weiler's: the form, tried on the tall cylinder's second step (5,500 passes), was
+    # never retried while Weiler's grew towards it, 23 s a step at t = 0.58 s. Tried and not
+    # kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
     # two or three iterations): 98-110 a step on the tall cylinder, 1,556 on the thin current
     # (Weiler's sum is no spectrally close stand-in for the form there).
     # Measured (2026-12-02, 2 cores): bore flow at 4 per radius 6.2 s against 31.5 s with the
@@ -953,7 +985,8 @@ class CoupledStokes:
             acc += self._pair(f * cF, pi, xij)
 
     @ti.kernel
-    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template()) -> ti.i32:
+    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template(),
+                     energy: ti.template()) -> ti.i32:
         """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
         r = rhs, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it has stopped
         already (rz = 0, or no iteration allowed)."""
@@ -970,7 +1003,7 @@ class CoupledStokes:
             r = ti.Vector([v[0], v[1], v[2]]) - self._dt_pressure(i)
             self.cg_x[slot] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.cg_r[slot] = r
-            self.cg_z[slot] = self.Binv_in[slot] @ r
+            self.cg_z[slot] = self._inner_block(i, slot, energy) @ r
             self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         self._inner_blocks(n, 0, S)
         ti.loop_config(serialize=True)
@@ -982,6 +1015,17 @@ class CoupledStokes:
             self.cg_it[None] = 0
             self.cg_done[None] = 0 if (rz > 0.0 and max_it > 0) else 1
         return self.cg_done[None]
+
+    @ti.func
+    def _inner_block(self, i, slot, energy: ti.template()):
+        """The inner solve's preconditioner: the diagonal block of the operator it inverts,
+        the strain-energy form's (energy) or Weiler's sum's."""
+        out = ti.Matrix.zero(ti.f64, 3, 3)
+        if ti.static(energy):
+            out = self.Binv[i]
+        else:
+            out = self.Binv_in[slot]
+        return out
 
     @ti.func
     def _inner_blocks(self, n, which, S: ti.template()):
@@ -1032,7 +1076,7 @@ class CoupledStokes:
                     acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     self.grid.for_each_listed(i, self._inner_task, acc)
                     self.cg_q[slot] = self.cg_p[i] - self.dt[None] * acc
-            self._inner_step(n, tol2, max_it, S)
+            self._inner_step(n, tol2, max_it, S, False)
         return self.cg_done[None]
 
     @ti.kernel
@@ -1054,11 +1098,11 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.cg_q[slot] = self.cg_p[i] - self.dt[None] * self.eacc[i]
-        self._inner_step(n, tol2, max_it, S)
+        self._inner_step(n, tol2, max_it, S, True)
         return self.cg_done[None]
 
     @ti.func
-    def _inner_step(self, n, tol2, max_it, S: ti.template()):
+    def _inner_step(self, n, tol2, max_it, S: ti.template(), energy: ti.template()):
         """The rest of an inner iteration once q = A~ p: alpha, x, r, z, beta and the stop."""
         self._inner_blocks(n, 1, S)
         ti.loop_config(serialize=True)
@@ -1077,7 +1121,7 @@ class CoupledStokes:
                 self.cg_x[slot] += alpha * self.cg_p[i]
                 r = self.cg_r[slot] - alpha * self.cg_q[slot]
                 self.cg_r[slot] = r
-                self.cg_z[slot] = self.Binv_in[slot] @ r
+                self.cg_z[slot] = self._inner_block(i, slot, energy) @ r
         self._inner_blocks(n, 0, S)
         ti.loop_config(serialize=True)
         for _ in range(1):
@@ -1106,7 +1150,7 @@ class CoupledStokes:
         diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
         iterations."""
         tol2 = self.inner_tol ** 2
-        done = self._inner_begin(n, j, self.inner_max, S)
+        done = self._inner_begin(n, j, self.inner_max, S, self.inner_energy)
         while not done:
             if self.inner_energy:
                 done = self._inner_iteration_energy(n, tol2, self.inner_max, S)
@@ -1192,8 +1236,6 @@ class CoupledStokes:
                                                  + a.outer_product(a)) \
                     - self.hourglass * self._square(acc, 0)
                 self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) + dt * blk).inverse()
-                if ti.static(self.inner_energy):
-                    self.Binv_in[slot] = self.Binv[i]  # the inner solve's operator is this form too
             else:
                 self.Binv[i] = weiler
                 mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
@@ -1465,6 +1507,7 @@ class CoupledStokes:
         self.previous_dt = float(dt) if extrapolate else 0.0
         free = self._find_free(n, S)
         iterations = 0
+        sweeps = 0  # Krylov vectors Gram-Schmidt went over, all iterations together
         m = self.m
         while True:
             if free:
@@ -1516,6 +1559,7 @@ class CoupledStokes:
                 H[: j + 2, j] = h
                 k = j + 1
                 iterations += 1
+                sweeps += j + 1
                 # |g[j + 1]| is the iterate's residual norm (right preconditioning): end the
                 # cycle once the criteria, scaled by how far it fell since the cycle began,
                 # are met; the true residuals decide at the top of the loop (a cycle that
@@ -1529,7 +1573,34 @@ class CoupledStokes:
             self._update(n, k, self.flexible, S)
         mean = self._sum(n, True, S) / max(n, 1)
         self._finish(n, kappa, S)
+        if self.flexible:
+            self._choose_inner(iterations, inner, sweeps)
         return StokesResult(bool(done), iterations, float(rel), float(rmax), mean, inner, free_rows=free)
+
+    def _choose_inner(self, iterations: int, inner: int, sweeps: int = 0):
+        """Count this solve's work against the inner operator it used and, with 'auto', pick
+        the next solve's (see "block-triangular preconditioner"): an operator not yet tried,
+        or the one whose latest solve cost fewer passes over the melt's neighbour lists, or,
+        once the one in use costs twice what it did when the two were last compared, the
+        other again (its count is stale). Counts, not timings: a run makes the same choices
+        every time."""
+        used = self.inner_energy
+        work = (OUTER_PASSES * iterations + (ENERGY_INNER_PASSES if used else 1) * inner
+                + KRYLOV_SWEEP_PASSES * sweeps)
+        self.inner_solves[used] += 1
+        if work == 0:
+            return  # solved from its start: no count of either operator
+        self.inner_work[used] = work
+        if self.inner_ref[used] is None:
+            self.inner_ref[used] = work
+        log.debug("coupled solve: inner operator %s, %d GMRES / %d inner iterations, %.0f passes",
+                  "system" if used else "weiler2018", iterations, inner, work)
+        if not self.inner_auto:
+            return
+        other = self.inner_work[not used]
+        if other is None or other < work or work > 2 * self.inner_ref[used]:
+            self.inner_energy = not used
+            self.inner_ref[not used] = None  # its first solve now sets its reference
 
     @ti.kernel
     def _block_sums(self, n: ti.i32, continuity: ti.template(), S: ti.template()) -> ti.f64:

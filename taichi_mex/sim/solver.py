@@ -421,6 +421,10 @@ class DFSPHSolver:
             "stokes_iterations_per_step": self.totals["stokes_iterations"] / steps,
             # the inner viscous iterations of the block-triangular preconditioner
             "stokes_inner_iterations_per_step": self.totals["stokes_inner_iterations"] / steps,
+            # the coupled solve's solves by the operator their inner viscous solve inverted
+            "stokes_inner_operator_solves": (
+                {"weiler2018": self.stokes.inner_solves[False],
+                 "system": self.stokes.inner_solves[True]} if self.stokes is not None else {}),
             "stokes_momentum_residual_worst": self.worst["stokes_momentum_residual"],
             "stokes_density_error_worst": self.worst["stokes_density_error"],
             # melt torn off into fragments that touch nothing: steps with any, most at once
