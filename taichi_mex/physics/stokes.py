@@ -17,8 +17,8 @@ Operators (V: the rest volume, F(r) x = grad W):
 * L: Weiler et al.'s (2018) viscosity operator, L(u)_i = sum_j c_ij F ((u_i - u_j) . x_ij) x_ij
   with c_ij = d mu_ij (m_j / rho_j) / rho_i / (r^2 + 0.01 H^2) and d calibrated on the lattice
   (physics/viscosity_weiler2018.py); with the free surface's traction, the strain-energy form
-  below, and Weiler's operator only inside the preconditioner (or not even there:
-  stokes_inner_operator = 'system', "block-triangular preconditioner" below);
+  below, and Weiler's operator only inside the preconditioner, on the solves where it is
+  the cheaper stand-in (stokes_inner_operator, "block-triangular preconditioner" below);
 * or (option stokes_viscous_operator) with Morris, Fox & Zhu's (1997) Laplacian in it,
   L(u)_i = sum_j c'_ij F r^2 (u_i - u_j), the whole velocity difference rather than its
   projection on the link (physics/viscosity_morris1997.py): 'morris1997' that alone,
@@ -469,9 +469,9 @@ class CoupledStokes:
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
-        # the inner solve's preconditioner, by row (not particle): the diagonal blocks of the
-        # operator it inverts (Weiler's sum's, or with stokes_inner_operator = 'system' Binv):
-        # read once a row per inner iteration, they stream in order
+        # the inner solve's preconditioner on Weiler's sum, by row (not particle): its
+        # diagonal blocks, read once a row per inner iteration, stream in order (on the
+        # strain-energy form the inner solve reads Binv)
         self.Binv_in = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         # the criterion's norm: T w and every basis vector's image T v_l, and the density
         # criterion's weight c in T (see "Norm")
@@ -927,8 +927,11 @@ class CoupledStokes:
     # solves cost twice what they did when it was chosen (its first solve then), so each
     # doubling of the cost tries the other again. Without that rule the 0.2 mm collapse
     # kept Weiler's: the form, tried on the tall cylinder's second step (5,500 passes), was
-    # never retried while Weiler's grew towards it, 23 s a step at t = 0.58 s. Tried and not
-    # kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
+    # never retried while Weiler's grew towards it, 23 s a step at t = 0.58 s. With it
+    # (2026-12-05, 2 cores, alone): the form on 75 of the 170 steps (the 2nd and 33rd, then
+    # from the 98th on, when Weiler's solves had grown from 600-1,000 to 8,700 passes), the
+    # same front, 1,109 s against 2,264 s on the form throughout (validation/peer). Tried and
+    # not kept: conjugate gradients on the form preconditioned by a Weiler solve (flexible,
     # two or three iterations): 98-110 a step on the tall cylinder, 1,556 on the thin current
     # (Weiler's sum is no spectrally close stand-in for the form there).
     # Measured (2026-12-02, 2 cores): bore flow at 4 per radius 6.2 s against 31.5 s with the
