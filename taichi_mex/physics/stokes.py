@@ -314,8 +314,6 @@ from taichi_mex.physics.viscosity_morris1997 import lattice_laplacian_factor as 
 
 log = logging.getLogger(__name__)
 
-#: the coupled solve's viscous pair terms: the weight of Morris's isotropic term in each, the
-#: rest Weiler's projected one (see "Operators")
 #: passes over the melt's neighbour lists (walls' passes counted as whole ones): a GMRES
 #: iteration of the block-triangular preconditioner (the inner solve's G(k) and the
 #: operator's product: the walls' ghosts, the strain-energy form's three passes and one of
@@ -329,6 +327,8 @@ ENERGY_INNER_PASSES = 4
 #: Weiler's inner operator's long solves spend more on these sweeps than on their passes
 KRYLOV_SWEEP_PASSES = 1.0 / 3.0
 
+#: the coupled solve's viscous pair terms: the weight of Morris's isotropic term in each, the
+#: rest Weiler's projected one (see "Operators")
 VISCOUS_OPERATORS = {"weiler2018": 0.0, "morris1997": 1.0, "espanol_revenga2003": 0.5}
 
 
