@@ -28,7 +28,7 @@ rest of the machine used meanwhile (from /proc/stat): the figures are comparable
 is near zero.
 
 The issue's case is ``--radius-mm 4 --height-mm 4 --viscosity 1 --density 1000
---spacing-mm 0.2 --until 3`` (SPlisHSPlasH alone took 42.5 min on 2 cores); the default here
+--spacing-mm 0.2 --until 3`` (about 20 min for each code on 2 cores, validation/peer); the default here
 is a coarser, shorter one that takes a few minutes for both codes together.
 
 The pysplishsplash 2.19 wheel bundles libGL/libGLX/libOpenGL/libGLdispatch/libGLU copies that
@@ -547,7 +547,7 @@ def print_table(result: dict, echo=print) -> None:
 def parser(prog: str = "python -m taichi_mex bench collapse",
            parser_class=argparse.ArgumentParser) -> argparse.ArgumentParser:
     p = parser_class(prog=prog, description=__doc__.split("\n\n")[0],
-                     epilog="The issue's full case (SPlisHSPlasH alone about 45 min on 2 cores): "
+                     epilog="The issue's full case (about 20 min for each code on 2 cores): "
                             "--spacing-mm 0.2 --until 3")
     p.add_argument("--radius-mm", type=float, default=4.0, help="cylinder radius in mm (default 4)")
     p.add_argument("--height-mm", type=float, default=4.0, help="cylinder height in mm (default 4)")
