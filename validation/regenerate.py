@@ -335,6 +335,10 @@ GPU = [("run", lambda r: r["label"]),
         if r.get("phase_seconds") else ""),
        ("same physics?", _melt_check)]
 
+#: both collapse comparisons' --quick run: the machinery on a coarse, short case
+PEER_COLLAPSE_QUICK = [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8,
+                                                    "--until", 0.1, "--json", "{out}/bench.json"])]
+
 PEER_COLLAPSE_COLUMNS = [
     ("code", lambda r: r["code"] + (" **(stopped)**" if r.get("stopped") else "")),
     ("particles", num("particles")), ("steps", num("steps")),
@@ -539,16 +543,14 @@ CASES = {
         "against SPlisHSPlasH 2.19 (DFSPH, Weiler et al. 2018 viscosity, Akinci boundaries, same "
         "particles), time to solution and Huppert's coefficient, one after the other in one command",
         [("collapse", ["bench", "collapse", "--json", "{out}/bench.json"])],
-        [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8, "--until", 0.1,
-                                      "--json", "{out}/bench.json"])],
+        PEER_COLLAPSE_QUICK,
         PEER_COLLAPSE_COLUMNS, read=read_bench_collapse, folder="peer", tag="collapse"),
     "peer_collapse_02": Case(
         "the issue's collapse (0.2 mm, 3 s) side by side: ours (inner operator 'auto', the "
         "default) and SPlisHSPlasH 2.19 at its 1e-4 s step, one after the other in one command",
         [("collapse, 0.2 mm, 3 s", ["bench", "collapse", "--spacing-mm", 0.2, "--until", 3,
                                     "--json", "{out}/bench.json"])],
-        [("collapse, 0.8 mm, 0.1 s", ["bench", "collapse", "--spacing-mm", 0.8, "--until", 0.1,
-                                      "--json", "{out}/bench.json"])],
+        PEER_COLLAPSE_QUICK,
         PEER_COLLAPSE_COLUMNS + [
             ("ours: GMRES / inner a step; solves on Weiler's / the form", inner_choice)],
         read=read_bench_collapse, folder="peer", tag="collapse_02"),
