@@ -533,30 +533,34 @@ class DFSPHOptions:
         "of 170 steps (two early tries, then from the 98th on), 1,109 s against 2,264 s on "
         "the form throughout (physics/stokes.py, \"block-triangular preconditioner\"; "
         "validation/peer). 'system' is refused where it would change nothing (without the "
-        "traction both are Weiler's sum; block_diagonal has no inner solve); 'auto' is "
-        "Weiler's sum there",
+        "traction both are the pair sum; block_diagonal has no inner solve); 'auto' is "
+        "the pair sum there",
         check=OneOf("weiler2018", "system", "auto"), flag="--stokes-inner-operator")
     stokes_surface_traction: bool = opt(
         True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "
-        "whose boundary term is the pressure's, physics/stokes.py); off: Weiler's pair sum, "
-        "whose surface carries no viscous flux. Off in a print by default: with it the bundled "
+        "whose boundary term is the pressure's, physics/stokes.py); off: the viscous pair sum "
+        "(stokes_viscous_isotropic_share), whose surface carries no viscous flux. Off in a print by default: with it the bundled "
         "bead comes out 1.5x as wide at draft and at standard, for a reason not yet found "
         "(physics/stokes.py has what was measured and tried), at 3.4-5.1x the cost with "
         "stokes_inner_operator = 'system' (2026-12-05)",
         check=Flag(),
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
-        flag_help="coupled solve: Weiler's pair sum at the free surface, which carries no viscous "
+        flag_help="coupled solve: the viscous pair sum at the free surface, which carries no viscous "
         "flux, in place of the traction-free condition (a print's default)")
-    stokes_viscous_operator: str = opt(
-        "weiler2018", help="coupled solve without the surface traction: the viscous pair term. "
-        "'weiler2018' (Weiler et al. 2018): each link resists the velocity difference along "
-        "itself. 'morris1997' (Morris, Fox & Zhu 1997): the whole difference, stiff across "
-        "the link too, but div(mu grad u), not div(2 mu D), where a support is cut. "
-        "'espanol_revenga2003': half of each, div(mu (grad u + grad u^T)). Measured: the "
-        "bundled bead (standard) 0.499 / 0.635 / 0.546 mm wide, the slicer's 0.45; benchy's "
-        "window flung no melt under Morris's (physics/stokes.py, \"Operators\")",
-        check=OneOf("weiler2018", "morris1997", "espanol_revenga2003"), flag="--viscous-operator")
+    stokes_viscous_isotropic_share: float | None = opt(
+        None, help="coupled solve without the surface traction: the share of Morris, Fox & "
+        "Zhu's (1997) Laplacian of the whole velocity difference in each viscous pair term, the "
+        "rest Weiler et al.'s (2018) link-projected sum (-). Both are Espanol & Revenga's "
+        "(2003) pair form of the Newtonian stress; the share w stands for a bulk viscosity "
+        "zeta = (5/3 - 2 w) mu, which a divergence-free flow does not feel. 0: Weiler's sum "
+        "alone, whose rows are held across a plane of links by their inertia only (benchy's "
+        "window flung such a particle at 1.44 m/s); 0.5: div(mu (grad u + grad u^T)); 1: "
+        "Morris's alone, which lets melt slip under a wall (the bundled bead 0.635 mm wide at "
+        "standard). Default (none given): 0.1 where the pair sum is the system's viscous "
+        "term (physics/stokes.py, \"Operators\")",
+        check=Either(NONE, Range(0.0, 1.0)), parse=parse_optional_float,
+        flag="--viscous-isotropic-share")
     stokes_zero_energy_control: float = opt(
         1.0, help="coupled solve with the surface traction: weight of Ganzenmueller's (2015) "
         "hourglass term, Weiler's pair dissipation of what the corrected velocity gradient "
@@ -716,20 +720,20 @@ class RunOptions:
         validate_fields(self, "run.")
         d = self.dfsph
         coupled = self.scheme == "dfsph" and d.creeping_solve == "coupled"
-        if d.stokes_viscous_operator != "weiler2018" and not coupled:
+        share = d.stokes_viscous_isotropic_share
+        if share is not None and not coupled:
             raise UserInputError(
-                f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "
-                "coupled solve's viscous term; this run does not use the coupled solve: add "
-                "--creeping-solve coupled (and --scheme dfsph), or keep 'weiler2018'.")
-        if d.stokes_viscous_operator != "weiler2018" and d.stokes_surface_traction:
+                f"run.dfsph.stokes_viscous_isotropic_share = {share} sets the coupled solve's "
+                "viscous pair term; this run does not use the coupled solve: add "
+                "--creeping-solve coupled (and --scheme dfsph), or leave it unset.")
+        if share is not None and d.stokes_surface_traction:
             raise UserInputError(
-                f"run.dfsph.stokes_viscous_operator = {d.stokes_viscous_operator!r} chooses the "
-                "pair sum's viscous term, which the surface traction's strain-energy form "
-                "replaces: turn run.dfsph.stokes_surface_traction off (--no-surface-traction), "
-                "or keep 'weiler2018'.")
+                f"run.dfsph.stokes_viscous_isotropic_share = {share} sets the pair sum's "
+                "viscous term, which the surface traction's strain-energy form replaces: turn "
+                "run.dfsph.stokes_surface_traction off (--no-surface-traction), or leave it unset.")
         if d.stokes_inner_operator == "system":
             # the inner solve exists only in the coupled solve's block-triangular
-            # preconditioner, and without the traction the system's block is Weiler's sum:
+            # preconditioner, and without the traction the system's block is the pair sum:
             # a setting that changes nothing is refused rather than recorded as if it had
             inert = [why for why, off in (
                 ("the run does not use the coupled solve (--creeping-solve coupled, --scheme "
@@ -737,7 +741,7 @@ class RunOptions:
                 ("run.dfsph.stokes_preconditioner is 'block_diagonal', which has no inner "
                  "solve", d.stokes_preconditioner != "block_triangular"),
                 ("run.dfsph.stokes_surface_traction is off, so the system's viscous block is "
-                 "Weiler's sum already", not d.stokes_surface_traction)) if off]
+                 "the pair sum already", not d.stokes_surface_traction)) if off]
             if inert:
                 raise UserInputError(
                     "run.dfsph.stokes_inner_operator = 'system' changes nothing here: "

@@ -160,6 +160,9 @@ REMOVED_OPTIONS = {
                     "inlet_row_min_coupling", "correction_in_pressure")},
     "run.dfsph.stabilisers.creeping_diffusion": "moved on 2026-12-05 to "
     "run.dfsph.creeping_diffusion (it says which steps are creeping, and stabilises nothing)",
+    "run.dfsph.stokes_viscous_operator": "replaced on 2026-12-05 by "
+    "run.dfsph.stokes_viscous_isotropic_share, the share of Morris's term in each pair term "
+    "('weiler2018': 0, 'espanol_revenga2003': 0.5, 'morris1997': 1; unset: 0.1)",
 }
 
 

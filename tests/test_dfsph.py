@@ -130,7 +130,9 @@ def test_a_description_with_the_retired_stabilisers_says_what_to_do():
                              (("stabilisers",), "eject_speed_factor", "deleted or slowed"),
                              (("stabilisers",), "creeping_diffusion", "moved .* to "
                               "run.dfsph.creeping_diffusion"),
-                             ((), "compression_check", "coupled solve")):
+                             ((), "compression_check", "coupled solve"),
+                             ((), "stokes_viscous_operator", "replaced .* by "
+                              "run.dfsph.stokes_viscous_isotropic_share")):
         data = RunSpec.create("print").to_dict()
         table = data["run"]["dfsph"]
         for name in where:

@@ -18,7 +18,7 @@ def _die(**changes):
 
 
 def test_the_drive_pushes_the_die_and_leaves_the_jet_alone():
-    """One coupled solve in the straight start geometry (Weiler's sum, as prints run): the
+    """One coupled solve in the straight start geometry (the pair sum, as prints run): the
     melt in the die's middle moves at the mean speed the force is sized for (measured 9.84
     mm/s for 10), and the jet far below, where no force acts, moves as a plug (the force
     leaking into it would shear it)."""

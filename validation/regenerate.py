@@ -584,8 +584,8 @@ CASES = {
         "coupled solve: axial velocity of the middle third against Hagen-Poiseuille",
         [(f"{dx} mm ({0.2 / dx:.0f} per radius)", scene("bore-flow", "--spacing-mm", dx))
          for dx in (0.05, 0.033, 0.025)]
-        + [(f"{dx} mm, Weiler's sum", scene("bore-flow", "--spacing-mm", dx,
-                                            "--no-surface-traction"))
+        + [(f"{dx} mm, the pair sum (prints)", scene("bore-flow", "--spacing-mm", dx,
+                                                       "--no-surface-traction"))
            for dx in (0.05, 0.033, 0.025)]
         + [("0.05 mm, block_diagonal", scene("bore-flow", "--spacing-mm", 0.05,
                                              "--stokes-preconditioner", "block_diagonal"))],
@@ -621,11 +621,12 @@ CASES = {
              ("traction", 0.05, ["--surface-traction"]),
              ("traction", 0.0333, ["--surface-traction"]),
              ("traction", 0.025, ["--surface-traction"]),
-             ("Weiler's sum (prints)", 0.05, []),
-             ("Weiler's sum (prints)", 0.0333, []),
-             ("Weiler's sum, relaxed 0.5", 0.05, ["--relaxation", 0.5]),
-             ("Morris", 0.05, ["--viscous-operator", "morris1997"]),
-             ("even blend", 0.05, ["--viscous-operator", "espanol_revenga2003"]))],
+             ("the pair sum (prints)", 0.05, []),
+             ("the pair sum (prints)", 0.0333, []),
+             ("the pair sum, relaxed 0.5", 0.05, ["--relaxation", 0.5]),
+             ("Weiler's sum alone", 0.05, ["--viscous-isotropic-share", 0]),
+             ("Morris", 0.05, ["--viscous-isotropic-share", 1]),
+             ("even blend", 0.05, ["--viscous-isotropic-share", 0.5]))],
         [("traction, 0.05 mm", scene("die-swell", "--surface-traction"))],
         [("swell: streamline / lattice / continuity", lambda r: (
              f"{r['swell']:.3f} / {r['swell_lattice']:.3f} / {r['swell_kinematic']:.3f}")

@@ -19,33 +19,39 @@ Operators (V: the rest volume, F(r) x = grad W):
   (physics/viscosity_weiler2018.py); with the free surface's traction, the strain-energy form
   below, and Weiler's operator only inside the preconditioner, on the solves where it is
   the cheaper stand-in (stokes_inner_operator, "block-triangular preconditioner" below);
-* or (option stokes_viscous_operator) with Morris, Fox & Zhu's (1997) Laplacian in it,
-  L(u)_i = sum_j c'_ij F r^2 (u_i - u_j), the whole velocity difference rather than its
-  projection on the link (physics/viscosity_morris1997.py): 'morris1997' that alone,
-  'espanol_revenga2003' half of each. In the continuum Weiler's sum is lap u + 2 grad div u
-  and Morris's lap u, so the even blend is lap u + grad div u = div(grad u + grad u^T), the
-  pair form of 2 mu D that Espanol & Revenga (Phys. Rev. E 67, 2003) write with a bulk
-  viscosity of 2 mu / 3; inside a divergence-free melt all three are mu lap u. Why try it:
-  Weiler's link is stiff along itself only, so a row's diagonal block 1 + dt sum c |F| x x^T
-  is as weak across a plane of links as the row's inertia; the pressure's push on such a row
-  grows linearly with its links' tilt out of that plane and the viscous hold quadratically,
-  and a particle at the melt's edge whose few links lie nearly in one plane is flung
+* without the traction, a share w (option stokes_viscous_isotropic_share, 0.1 unless given) of
+  each pair term is Morris, Fox & Zhu's (1997) Laplacian of the whole velocity difference,
+  c'_ij F r^2 (u_i - u_j), rather than its projection on the link (physics/viscosity_morris1997.py).
+  In the continuum Weiler's sum is lap u + 2 grad div u and Morris's lap u, so the pair term is
+  lap u + 2 (1 - w) grad div u: Espanol & Revenga's (Phys. Rev. E 67, 2003) pair form of the
+  Newtonian stress with a bulk viscosity zeta = (5/3 - 2 w) mu (Weiler's sum alone: 5 mu / 3;
+  the even blend w = 1/2: div(mu (grad u + grad u^T)), 2 mu / 3; Morris's alone a negative one);
+  inside a divergence-free melt every w gives mu lap u. Why not w = 0: Weiler's link is stiff
+  along itself only, so a row's diagonal block 1 + dt sum c |F| x x^T is as weak across a plane
+  of links as the row's inertia. Without that inertia (the Stokes limit a creeping step is
+  close to, nu dt / dx^2 ~ 1e4) the row is singular: Weiler's sum alone does not make the
+  discrete Stokes problem well posed at a particle whose few links lie nearly in one plane. The
+  pressure's push on such a row grows linearly with its links' tilt out of the plane and the
+  viscous hold quadratically, so it is flung, at a speed its inertia, not the flow, sets
   (benchy's window: the particle at the tip's rim, smallest eigenvalue of its block 3.98
-  against the melt's median 1.1e5, 1.44 m/s). With Morris's term every block has its links'
-  sum as a floor in every direction (half of it in the blend). Measured side by side
-  (2026-12-05, 2 cores), Weiler / blend / Morris: the bundled bead 0.471 / 0.491 / 0.560 mm
-  wide at draft, 0.499 / 0.546 / 0.635 mm at standard and 0.4995 / 0.571 / 0.599 mm at fine
-  (Weiler's settles 11 % over the slicer's width, the blend's grows away from it), 0.195 /
-  0.185 / 0.165 mm high at draft (the slicer's 0.45 x 0.2 mm); the squeeze film without the
-  traction at 4 layers and R / h = 5 0.82 / 0.68 / 0.38 of Stefan's force; the bore's profile
-  1.7 / 1.3 / 1.1 % of u_max off Poiseuille's at 4 per radius. The isotropic term under-
-  resists the lubrication flow under a wall (under Morris's the melt below the film's disc
-  moved at 0.82 of its speed, under Weiler's at 0.94) and the bead spreads: the shapes rank
-  Weiler's first. Benchy's 4 x 4 mm window (validation/windows) ran to its end under Morris's
-  with no melt faster than 0.092 m/s (Weiler's: 0.77 m/s and 627 steps over 4x the nozzle's
-  speed), in 7,130 steps at 17.5 / 47 GMRES / inner iterations a step against 8,217 at 17.5 /
-  101, and under the blend in 7,126 steps, neither with melt over 4x the nozzle's speed.
-  Weiler's stays the default; the others are measured alternatives, not a fix;
+  against the melt's median 1.1e5, 1.44 m/s; at the real viscosity, 80x less inertia against
+  the same rows, the window lost 18 particles). A share w of Morris's term gives every block
+  at least w times its links' sum in every direction (tests/test_stokes.py), so such a row is
+  held by viscosity, as its melt neighbours' mean. Morris's term alone lets melt slip under a
+  wall: measured side by side (2026-12-05, 2 cores), w = 0 / 0.5 / 1, the bundled bead 0.471 /
+  0.491 / 0.560 mm wide at draft, 0.499 / 0.546 / 0.635 mm at standard and 0.4995 / 0.571 /
+  0.599 mm at fine (the slicer's 0.45 x 0.2 mm); the squeeze film without the traction at 4
+  layers and R / h = 5 0.82 / 0.68 / 0.38 of Stefan's force (under Morris's the melt below the
+  film's disc moved at 0.82 of its speed, under Weiler's at 0.94); the bore's profile 1.7 /
+  1.3 / 1.1 % of u_max off Poiseuille's at 4 per radius. A small share keeps Weiler's shapes
+  and gives the floor: at w = 0 / 0.1 / 0.2 the bundled bead is 0.471 / 0.467 / 0.487 mm wide
+  at draft (the same run's scatter: 0.007 mm) and 0.499 / 0.501 / 0.511 mm at standard, the
+  squeeze film 0.82 / 0.80 / 0.77 of Stefan's force at 4 layers, and at w = 0 / 0.1 0.958 /
+  0.938 at 6 and 1.032 / 1.014 at 8 (2026-12-05, 2 cores). Benchy's 4 x 4 mm window
+  (validation/windows) under w = 0.1: to its end, nothing lost, no melt faster than 0.086 m/s
+  or 4x the nozzle's speed, 7,114 steps in 14.4 min; under w = 0 on the same day's code it blew
+  up at t = 188.03 s on a particle at 1.71 m/s. 0.1 is a choice inside the range where the
+  shapes do not move (measured above), not a derived value;
 * G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
   other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
   D(u)_i = sum_j V (u_i - u_j) . grad W_ij + sum_b V (u_i - u_b) . grad W_ib.
@@ -262,7 +268,7 @@ fragment's translation and rotation to the ones that leave its rows no net force
 net moment: a coarse correction on the rigid modes, as deflation removes known near-null
 modes from a Krylov solve (Nicolaides, SIAM J. Numer. Anal. 24, 1987). Their deformation is
 stiff, and the tolerance sees it.
-With Morris's term in L (stokes_viscous_operator) a pair's viscous force is not along the
+With Morris's term in L (any isotropic share) a pair's viscous force is not along the
 pair: a rigid rotation is no longer near-null (it dissipates) and the rows' moments do not
 cancel, so only the translation is set; GMRES meets the rotation like any stiff mode.
 
@@ -327,9 +333,9 @@ ENERGY_INNER_PASSES = 4
 #: Weiler's inner operator's long solves spend more on these sweeps than on their passes
 KRYLOV_SWEEP_PASSES = 1.0 / 3.0
 
-#: the coupled solve's viscous pair terms: the weight of Morris's isotropic term in each, the
-#: rest Weiler's projected one (see "Operators")
-VISCOUS_OPERATORS = {"weiler2018": 0.0, "morris1997": 1.0, "espanol_revenga2003": 0.5}
+#: the share of Morris's isotropic term in each viscous pair term where the pair sum is the
+#: system's viscous term and none is given, the rest Weiler's projected one (see "Operators")
+ISOTROPIC_SHARE = 0.1
 
 
 @dataclass
@@ -402,11 +408,12 @@ class CoupledStokes:
         self.drive = (0.0, 0.0, 0.0, math.inf)
         # the viscous pair term (see "Operators"): the share of Morris's Laplacian of the whole
         # velocity difference in it, the rest Weiler's link-projected one
-        self.w_iso = VISCOUS_OPERATORS[opts.stokes_viscous_operator]
-        self.isotropic = self.w_iso > 0.0
-        if self.isotropic and self.traction:
+        share = opts.stokes_viscous_isotropic_share
+        if share is not None and self.traction:
             raise ValueError("the pair sum's viscous term is not used with the surface traction "
                              "(RunOptions.validate refuses the combination)")
+        self.w_iso = 0.0 if self.traction else (ISOTROPIC_SHARE if share is None else float(share))
+        self.isotropic = self.w_iso > 0.0
         self.morris_ratio = 0.0
         if self.isotropic:
             self.morris_ratio = (1.0 / morris_lattice_factor(kernel, spacing_m, volume_m3)) / viscous.d

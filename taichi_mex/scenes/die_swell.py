@@ -191,7 +191,7 @@ class DieSwellOptions:
 
 
 def _defaults(_options) -> dict:
-    # the free surface as prints run it: Weiler's pair sum, no surface traction
+    # the free surface as prints run it: the pair sum, no surface traction
     return coupled_pla_defaults(0.05, {"stokes_surface_traction": False}, gravity_m_s2=0.0)
 
 

@@ -425,6 +425,9 @@ class DFSPHSolver:
             "stokes_inner_operator_solves": (
                 {"weiler2018": self.stokes.inner_solves[False],
                  "system": self.stokes.inner_solves[True]} if self.stokes is not None else {}),
+            # the share of Morris's term in the viscous pair terms as run (0 with the traction)
+            "stokes_viscous_isotropic_share": (self.stokes.w_iso if self.stokes is not None
+                                               else None),
             "stokes_momentum_residual_worst": self.worst["stokes_momentum_residual"],
             "stokes_density_error_worst": self.worst["stokes_density_error"],
             # melt torn off into fragments that touch nothing: steps with any, most at once
