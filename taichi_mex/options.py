@@ -540,14 +540,15 @@ class DFSPHOptions:
         True, help="coupled solve: the free surface is traction-free, -p + 2 mu n.D.n = 0 (the "
         "viscous term is the derivative of a dissipation built on the corrected strain rate, "
         "whose boundary term is the pressure's, physics/stokes.py); off: the viscous pair sum "
-        "(stokes_viscous_isotropic_share), whose surface carries no viscous flux. Off in a print by default: with it the bundled "
-        "bead comes out 1.5x as wide at draft and at standard, for a reason not yet found "
-        "(physics/stokes.py has what was measured and tried), at 3.4-5.1x the cost with "
+        "(stokes_viscous_isotropic_share), whose surface carries no viscous flux. Off in a "
+        "print by default: with it the bundled bead comes out 1.5x as wide at draft and at "
+        "standard, for a reason not yet found (physics/stokes.py has what was measured and "
+        "tried), at 3.4-5.1x the cost with "
         "stokes_inner_operator = 'system' (2026-12-05)",
         check=Flag(),
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
-        flag_help="coupled solve: the viscous pair sum at the free surface, which carries no viscous "
-        "flux, in place of the traction-free condition (a print's default)")
+        flag_help="coupled solve: the viscous pair sum at the free surface, which carries no "
+        "viscous flux, in place of the traction-free condition (a print's default)")
     stokes_viscous_isotropic_share: float | None = opt(
         None, help="coupled solve without the surface traction: the share of Morris, Fox & "
         "Zhu's (1997) Laplacian of the whole velocity difference in each viscous pair term, the "

@@ -19,8 +19,8 @@ As with Weiler's constant, the continuum's 2 (the mean of mu_i + mu_j) is calibr
 lattice so that a quadratic shear profile diffuses at the set viscosity (cubic spline at
 H = 2 dx: the lattice sum is 0.496, 0.99 of the continuum's 1/2, where Weiler's reaches 0.70
 of its own). The coupled solve
-uses it alone or blended with Weiler's (physics/stokes.py, "Operators": measured there, and
-why neither replaces Weiler's).
+takes a share of it in each pair term, the rest Weiler's (0.1 unless given: physics/stokes.py,
+"Operators", has why and what each share measured).
 """
 
 import numpy as np
