@@ -50,8 +50,9 @@ Operators (V: the rest volume, F(r) x = grad W):
   film 0.82 / 0.80 / 0.77 of Stefan's force at 4 layers, and at w = 0 / 0.1 0.958 / 0.938 at 6
   and 1.032 / 1.014 at 8 (2026-12-05, 2 cores). Benchy's 4 x 4 mm window (validation/windows)
   under w = 0.1, at the real viscosity: to its end, nothing lost, no melt faster than 0.086 m/s
-  or 4x the nozzle's speed, 7,114 steps in 13.8-14.4 min; under w = 0 on the same day's code it
-  blew up at t = 188.03 s on a particle at 1.71 m/s. 0.1 is a choice where the shapes move
+  or 4x the nozzle's speed, 7,114 steps in 13.8-14.4 min (under w = 0.05 as well: 7,175 steps,
+  nothing lost); under w = 0 on the same day's code it blew up at t = 188.03 s on a particle
+  at 1.71 m/s. 0.1 is a choice where the shapes move
   by 2 % at most (measured above), not a derived value;
 * G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
   other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
