@@ -52,8 +52,8 @@ Operators (V: the rest volume, F(r) x = grad W):
   under w = 0.1, at the real viscosity: to its end, nothing lost, no melt faster than 0.086 m/s
   or 4x the nozzle's speed, 7,114 steps in 13.8-14.4 min (under w = 0.05 as well: 7,175 steps,
   nothing lost); under w = 0 on the same day's code it blew up at t = 188.03 s on a particle
-  at 1.71 m/s. 0.1 is a choice where the shapes move
-  by 2 % at most (measured above), not a derived value;
+  at 1.71 m/s. 0.1 is a choice where the shapes move by 2 % at most (measured above), not a
+  derived value;
 * G, D: DFSPH's pressure gradient and velocity divergence (physics/dfsph.py), adjoint to each
   other: G(k)_i = sum_j V (k_i + k_j) grad W_ij + sum_b V k_i grad W_ib,
   D(u)_i = sum_j V (u_i - u_j) . grad W_ij + sum_b V (u_i - u_b) . grad W_ib.
