@@ -20,7 +20,9 @@ def test_dry_run_on_bundled_default(tmp_path, capsys):
     assert PLAN_KEYS <= plan.keys()
     assert plan["gcode"].endswith(bundled.DEFAULT_GCODE)
     assert plan["selected_extruded_volume_mm3"] == pytest.approx(plan["extruded_volume_mm3"])
-    assert "selected layers 1" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "selected layers 1" in out
+    assert "estimate: " in out and "steps of" in out  # the cost, before committing to the run
 
 
 def test_a_print_takes_the_coupled_solve_and_either_surface_condition():
@@ -122,5 +124,13 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
     assert run_warnings({"particles_lost": 0}, run) == []  # EDAC: no viscous solve
     bad = run_warnings({"particles_lost": 11, "viscosity_residual_worst": 1.68}, run)
     assert len(bad) == 2
-    assert bad[0].startswith("11 melt particles left the domain (flung off")
+    assert bad[0].startswith("11 melt particles left the domain: melt carried off")
+    where = run_warnings({"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
+                          "particles_lost_between_s": [0.5, 1.25]}, run)
+    assert where[0].startswith("3 melt particles left the domain (2 through top, 1 through x min) "
+                               "at t = 0.5-1.25 s")
+    from taichi_mex.post.report import _health  # and the report's health table says the same
+    assert "3 (2 through top, 1 through x min, t = 0.5-1.25 s)" in _health(
+        {"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
+         "particles_lost_between_s": [0.5, 1.25]})
     assert "1.7 against 0.001" in bad[1] and "viscosity_max_iterations (500)" in bad[1]

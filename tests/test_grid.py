@@ -51,10 +51,13 @@ def test_outside_and_nan_particles_are_dropped_but_nozzle_is_parked():
     backend.init("cpu", "f32")
     H = 0.1
     lo, hi = np.zeros(3), np.ones(3) * 0.5
-    pts = np.array([[0.1, 0.1, 0.1], [0.12, 0.1, 0.1], [0.9, 0.1, 0.1], [np.nan, 0, 0], [2.0, 2.0, 2.0]])
-    st, grid, ids = _build(pts, [FLUID, FLUID, FLUID, FLUID, INLET], H, lo, hi)
+    pts = np.array([[0.1, 0.1, 0.1], [0.12, 0.1, 0.1], [0.9, 0.1, 0.1], [np.nan, 0, 0], [2.0, 2.0, 2.0],
+                    [0.1, 0.1, 0.7], [0.1, -0.2, 0.1], [0.1, 0.2, -1e-3]])
+    st, grid, ids = _build(pts, [FLUID, FLUID, FLUID, FLUID, INLET, FLUID, SOLID, FLUID], H, lo, hi)
     assert st.n == 3  # two melt particles inside + the parked inlet particle
-    assert grid.lost_total == 2
+    assert grid.lost_total == 5
+    # each lost particle is named by the face it crossed; NaN by none
+    assert grid.lost_last == {"x_max": 1, "not_finite": 1, "top": 1, "y_min": 1, "bottom": 1}
     phases = st.phase.to_numpy()[: st.n]
     assert sorted(phases.tolist()) == [FLUID, FLUID, INLET]
 

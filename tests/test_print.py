@@ -91,11 +91,13 @@ def test_layers_above_the_first_print_on_a_solid_substrate():
     assert volume == pytest.approx(layer1, rel=0.1)
 
 
-def test_the_nozzle_is_its_flat_tip_and_a_flank_at_its_angle_up_to_the_domains_top():
+def test_the_nozzle_is_its_flat_tip_and_a_flank_at_its_angle_and_the_domain_holds_its_melt():
     """Above the flat tip (a slab as thick as the bore column) the nozzle's flank rises at its
-    angle from the face's edge, a shell at least the slab thick along its normal, and reaches
-    the domain's top wherever the nozzle is: melt the tip ploughs up meets it (with the slab
-    alone, benchy's window lost 8 particles through the domain's top riding on it)."""
+    angle from the face's edge, a shell at least the slab thick along its normal, reaching
+    over the highest face's reach wherever the nozzle is: melt the tip ploughs up meets it
+    (with the slab alone, benchy's window lost 8 particles through the domain's top riding on
+    it). The domain's top is over the flank's top at the highest face: melt on the flank rises
+    with the nozzle."""
     from taichi_mex.sim.boundaries import nozzle_tip_lattice
 
     dx, bore, tip, slices = 0.05e-3, 0.2e-3, 0.5e-3, 4
@@ -117,8 +119,17 @@ def test_the_nozzle_is_its_flat_tip_and_a_flank_at_its_angle_up_to_the_domains_t
     opts = RunOptions(spacing_mm=0.1)
     plan = PrintScene(bundled.gcode_path("single_bead")).plan(opts, Material())
     assert plan.inlet.flank_angle_deg == 45.0
-    # the bundled bead's nozzle is at z = 0.2 mm throughout
-    assert plan.inlet.body_height_m == pytest.approx(plan.domain_hi_m[2] - 0.2e-3, rel=1e-9)
+    # the bundled bead's nozzle is at z = 0.2 mm throughout: the flank reaches to within two
+    # supports of the domain's top
+    H = opts.resolved_kernel()[1] * opts.spacing_m
+    assert plan.inlet.body_height_m == pytest.approx(plan.domain_hi_m[2] - 0.2e-3 - 2 * H, rel=1e-9)
+    # the paper block lifts its nozzle from 0.4 to 1.6 mm: at its lowest the flank reaches the
+    # highest face's reach, and melt on the flank, carried up with it (no-slip), stays in the
+    # domain at the highest (its lifts carried 479 particles out through the top)
+    block = PrintScene(bundled.gcode_path("paper_block_3x3")).plan(opts, Material())
+    low, high = 0.4e-3, 1.6e-3
+    assert block.inlet.body_height_m > high - low
+    assert block.domain_hi_m[2] >= high + block.inlet.body_height_m + H
     flat_plan = PrintScene(bundled.gcode_path("single_bead"), nozzle_flank_angle_deg=None).plan(
         opts, Material())
     assert flat_plan.inlet.flank_angle_deg is None
@@ -196,10 +207,11 @@ def test_ctrl_c_stops_cleanly_and_keeps_frames(tmp_path):
 
 
 def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
-    """The coupled creeping solve has its own measured rate per particle-step, with the
+    """The coupled creeping solve has its own measured rate per melt particle-step, with the
     surface traction several times the cost without; the estimate printed before a run once
-    used the split solve's rate for both and said 36 s where the draft bead took 157 s. A
-    print refuses the split solve before it starts: its melt creeps."""
+    used the split solve's rate for both and said 36 s where the draft bead took 157 s, and
+    counting every particle put the unscaled paper block at 4 min where it took 19. A print
+    refuses the split solve before it starts: its melt creeps."""
     from taichi_mex.errors import UserInputError
 
     def sim(**changes):
@@ -216,12 +228,19 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
     assert "rates measured for dfsph-coupled (" in plain.describe_estimate()
     def work(s):  # the estimate less the fixed start-up
         return s.estimate["wall_time_estimate_s"] - STARTUP_S
+    # the solve's cost is in its melt rows: the melt particle-steps, the commanded volume
+    # deposited by each step (the bead deposits throughout: about half the full bead's)
+    e = plain.estimate
+    full = e["steps_estimate"] * 0.4071e-9 / plain.run_opts.spacing_m**3
+    assert 0.4 * full < e["melt_particle_steps_estimate"] < 0.6 * full
+    assert work(plain) == pytest.approx(e["melt_particle_steps_estimate"]
+                                        / MEASURED_RATE_2CORE["dfsph-coupled"])
     assert work(coupled) / work(plain) == pytest.approx(MEASURED_RATE_2CORE["dfsph-coupled"]
                                                         / MEASURED_RATE_2CORE["dfsph-coupled-traction"])
     # its iterations a step grow with the resolution (36 / 77 GMRES a step at 3 / 6 per gap)
     fine = sim(resolution="fine")
     per_step = lambda s: work(s) / s.estimate["steps_estimate"]  # noqa: E731
-    assert per_step(fine) > 2.5 * 2 ** 1.3 * per_step(plain)  # 2.5x the particles, and more
+    assert per_step(fine) > 6 * 2 ** 0.6 * per_step(plain)  # 8x the melt, and more a particle
 
 
 def test_the_estimate_counts_the_steps_dt_factor_asks_for():

@@ -29,7 +29,7 @@ def print_parser() -> tuple[Parser, set]:
     p.add_argument("gcode", nargs="?", default=None,
                    help=f"G-code file or bundled name (default: {bundled.DEFAULT_GCODE})")
     _add_common(p)
-    p.add_argument("--dry-run", action="store_true", help="plan only: print the plan and write plan.json")
+    p.add_argument("--dry-run", action="store_true", help="plan only: print the plan and the estimate, write plan.json")
     p.add_argument("--resume", type=Path, default=None, metavar="DIR",
                    help="continue the run in DIR from its last checkpoint (written at every "
                         "output frame and on Ctrl-C) to its end; takes no other options")
@@ -112,7 +112,12 @@ def run_warnings(summary: dict, run) -> list[str]:
     out = []
     lost = summary.get("particles_lost", 0)
     if lost:
-        out.append(f"{lost} melt particles left the domain (flung off the nozzle or the part)")
+        faces = ", ".join(f"{n} through {face.replace('_', ' ')}" for face, n in
+                          summary.get("particles_lost_by_face", {}).items())
+        span = summary.get("particles_lost_between_s") or []
+        when = f" at t = {span[0]:.4g}-{span[1]:.4g} s" if len(span) == 2 else ""
+        out.append(f"{lost} melt particles left the domain" + (f" ({faces})" if faces else "")
+                   + when + ": melt carried off the nozzle or the part")
     worst = summary.get("viscosity_residual_worst")
     tol = run.dfsph.viscosity_tolerance
     if worst is not None and worst > 10 * tol:
@@ -150,7 +155,10 @@ def run_print(argv: list[str]) -> int:
     print(plan.describe())
     print(material_line(spec))
     print(f"plan written to {plan.write(args.out)}")
-    if args.dry_run:
+    if args.dry_run:  # what the run would cost, before committing to it
+        from taichi_mex.sim.simulation import Simulation
+
+        print(f"estimate: {Simulation.from_spec(spec, scene=scene).describe_estimate()}")
         return 0
     return run_simulation(spec, args.out, scene=scene)
 

@@ -32,6 +32,10 @@ import numpy as np
 from taichi_mex.backend import current, ti
 from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID
 
+#: where lost melt left the grid: its six faces, then positions that are not finite (a blow-up)
+LOST_FACES = ("x_min", "x_max", "y_min", "y_max", "bottom", "top", "not_finite")
+NOT_FINITE = len(LOST_FACES) - 1
+
 
 @ti.data_oriented
 class NeighbourGrid:
@@ -78,9 +82,12 @@ class NeighbourGrid:
         self.x_ref = ti.Vector.field(3, float, shape=cap)  # positions at the last rebuild
         self.overflow = ti.field(ti.i32, shape=())
         self.lost_melt = ti.field(ti.i32, shape=())
+        #: melt lost in the last rebuild by the face it crossed (LOST_FACES order)
+        self.lost_face = ti.field(ti.i32, shape=NOT_FINITE + 1)
         self.serial_scatter = current().get("arch", "cpu") == "cpu"
         self._overflow = 0
         self.lost_total = 0
+        self.lost_last = {}  #: the last rebuild's lost melt by the face it crossed (LOST_FACES)
         self._reorder = None  # built on the first rebuild, once every module registered its fields
 
     @staticmethod
@@ -105,6 +112,8 @@ class NeighbourGrid:
     @ti.func
     def _bin(self, n):
         self.lost_melt[None] = 0
+        for f in range(NOT_FINITE + 1):
+            self.lost_face[f] = 0
         for c in range(self.n_cells + 2):
             self.count[c] = 0
         for i in range(n):
@@ -120,8 +129,22 @@ class NeighbourGrid:
                 lin = self.parked_bucket  # the nozzle may travel outside the simulated region
             elif ph <= SOLID:
                 ti.atomic_add(self.lost_melt[None], 1)
+                ti.atomic_add(self.lost_face[self._face_crossed(c, finite)], 1)
             self.cell_of[i] = lin
             ti.atomic_add(self.count[lin], 1)
+
+    @ti.func
+    def _face_crossed(self, c, finite):
+        """Index in LOST_FACES of the face a particle outside the grid crossed (the last
+        axis it is out along; a position that is not finite has none)."""
+        face = NOT_FINITE
+        if finite:
+            for d in ti.static(range(3)):
+                if c[d] < 0:
+                    face = 2 * d
+                elif c[d] >= self.dims[d]:
+                    face = 2 * d + 1
+        return face
 
     @ti.func
     def _exclusive_scan(self, values: ti.template(), starts: ti.template(), length):
@@ -179,6 +202,10 @@ class NeighbourGrid:
         alive, lost, overflow = (int(v) for v in self._reorder(n))
         self.state.n = alive
         self.lost_total += lost
+        self.lost_last = {}
+        if lost:
+            self.lost_last = {face: int(count) for face, count in
+                              zip(LOST_FACES, self.lost_face.to_numpy()) if count}
         self._overflow = overflow
         self.stale = False
         self.rebuilds += 1

@@ -134,9 +134,14 @@ def _health(summary: dict) -> str:
         return None if value is None else f"{_num(100 * value, 3)} %"
 
     lost = summary.get("particles_lost", 0)
+    where = ", ".join(f"{n} through {face.replace('_', ' ')}"
+                      for face, n in (summary.get("particles_lost_by_face") or {}).items())
+    span = summary.get("particles_lost_between_s") or []
+    if len(span) == 2:
+        where += f", t = {span[0]:.4g}-{span[1]:.4g} s"
     redone = summary.get("unconverged_solves_redone") or {}
     rows = [
-        ["particles lost", [_verdict(not lost, f"{lost}")]],
+        ["particles lost", [_verdict(not lost, f"{lost}" + (f" ({where})" if where else ""))]],
         ["deposited / commanded volume (mm³)",
          [_num(summary.get("deposited_volume_mm3")), _num(summary.get("commanded_volume_mm3"))]],
         ["density error, interior melt: mean / max",

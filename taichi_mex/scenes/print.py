@@ -168,7 +168,13 @@ class PrintScene:
         times = np.linspace(t0, min(t1, traj.print_time_s), 400)
         z_nozzle = traj.sample(times, clip=True).position_mm[:, 2] * 1e-3 + zoff
         column = (column_slices(H, dx) + 1) * dx  # the bore's column and a slice to spare
-        z_top = float(z_nozzle.max()) + column + 2 * H + plough
+        # the nozzle's flank reaches this far over the highest face, from the lowest face
+        # (melt the tip ploughs up meets it wherever the nozzle is); melt on the flank rises
+        # with the nozzle, no-slip, so the domain's top is over the flank's top at the highest
+        # face: the paper block's lifts carried 479 particles on the flank out through a top
+        # level with the highest face's reach (2026-12-06)
+        body = float(z_nozzle.max() - z_nozzle.min()) + column + 2 * H + plough
+        z_top = float(z_nozzle.max()) + body + 2 * H
         z_bottom = -(run.wall_layers() + 1) * dx - H
         lo = np.array([lo_xy[0] - H, lo_xy[1] - H, z_bottom])
         hi = np.array([hi_xy[0] + H, hi_xy[1] + H, z_top])
@@ -191,8 +197,7 @@ class PrintScene:
         return ScenePlan(
             name=self.name, domain_lo_m=lo, domain_hi_m=hi, t_start_s=t0, t_end_s=t1,
             blocks=blocks, inflow_particles=inflow,
-            # the flank reaches the domain's top wherever the nozzle is (lowest: farthest)
-            inlet=InletSpec(sel, zoff, tip, self.flank_angle_deg, z_top - float(z_nozzle.min())),
+            inlet=InletSpec(sel, zoff, tip, self.flank_angle_deg, body),
             needs=set(), section_point_m=section, section_direction=direction / np.linalg.norm(direction),
             commanded_volume_m3=lambda t: float(sel.volume_until([t])[0]) * 1e-9,
             speed_scale_m_s=max(speed, 1e-3),

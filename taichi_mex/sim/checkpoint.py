@@ -105,6 +105,7 @@ def save(sim, description: dict) -> Path:
     data = {"format": FORMAT, "taichi_mex": __version__, "description": description,
             "capacity": cap, "n": n, "fields": arrays, "values": values,
             "run": {"time_s": sim.time_s, "steps": sim.steps, "lost_particles": sim.lost_particles,
+                    "lost_by_face": sim.lost_by_face, "lost_times_s": sim.lost_times_s,
                     "inlet_retired": sim._inlet_retired, "skipped": sim.skipped}}
     path = Path(sim.out_dir) / FILE
     tmp = path.with_name(path.name + ".tmp")
@@ -164,6 +165,8 @@ def restore(sim, data: dict) -> None:
     sim.time_s = run["time_s"]
     sim.steps = run["steps"]
     sim.lost_particles = run["lost_particles"]
+    sim.lost_by_face = run.get("lost_by_face", {})  # checkpoints before 2026-12-06 lack them
+    sim.lost_times_s = run.get("lost_times_s", [])
     sim._inlet_retired = run["inlet_retired"]
     sim.skipped = run["skipped"]
     sim.grid.stale = True

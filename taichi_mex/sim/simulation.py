@@ -28,34 +28,38 @@ _TEMP_FACTOR = 2.0
 
 #: particle-steps per second measured on a 2-core CPU (validation/trade and windows;
 #: the DFSPH figure is the single bead at standard resolution, the EDAC one the
-#: 100k-particle block); the wall-time estimate scales them with the thread count
-#: dfsph-coupled: the bundled bead at draft with the coupled solve's default tolerances and
-#: its stopping test counting the pressure error's motion (8c21d14): 18,092 particles, 602
-#: steps in 28.3 s with 10 s of start-up on an idle machine (2026-12-04), at draft's spacing:
-#: see COUPLED_RATE_*; it puts benchy's 4 x 4 mm window at 39 min, measured 38 beside other
-#: runs (validation/windows);
-#: dfsph-coupled-traction: the same solve with the free surface's traction, several times
-#: the cost per particle-step (the 4 mm collapse at 0.5 mm: 763-888 s for 590 steps beside
-#: two other runs, 2026-12-03; with its steps set by the melt's motion, 2026-12-05, 21-29 s
-#: for 54-67 steps at 0.5 mm and 285 s for 114 steps at 0.3 mm, alone)
-MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 6.0e5,
-                       "dfsph-coupled-traction": 1.0e4, "static": 3.0e6}
+#: 100k-particle block); the wall-time estimate scales them with the thread count.
+#: The coupled creeping solve's figures are *melt* particle-steps per second: its cost is in
+#: its melt rows, the walls around them cost next to nothing (the bundled bead, 17,616
+#: particles of which 1,376 melt at the end, costs per melt particle-step what the paper block
+#: costs with 10,945 of 36,897). Counting every particle put the unscaled paper block at
+#: 4 min where it took 19 (2026-12-06).
+#: dfsph-coupled: melt particle-steps, start-up left out, at draft's spacing (see
+#: COUPLED_RATE_*), alone on 2 cores, 2026-12-05/06: the bundled bead 35,000-38,000, benchy's
+#: 4 x 4 mm window 31,900, the unscaled paper block 29,900;
+#: dfsph-coupled-traction: the same solve with the free surface's traction, about nine times
+#: the cost per melt particle-step (the 4 mm collapse at 10 Pa s, its steps set by its
+#: motion: 4,100 at 0.5 mm, 2026-12-06; 3,200 at 0.3 mm, 2026-12-05)
+MEASURED_RATE_2CORE = {"edac": 1.3e6, "dfsph": 2.6e5, "dfsph-coupled": 3.2e4,
+                       "dfsph-coupled-traction": 3.5e3, "static": 3.0e6}
 #: a print's coupled solve takes more iterations a step the finer its spacing (the bundled
 #: bead at 3 / 4 / 6 particles per 0.2 mm gap: 9 / 10 / 12 GMRES and 47 / 54 / 93 inner
 #: iterations a step, validation/trade 2026-12-04): its rate holds at draft's spacing and
-#: falls as (draft spacing / spacing)^1.3 below it (measured: standard 1.54x and fine 2.18x
-#: draft's wall time per particle-step, start-up left out, against 1.45x and 2.46x from the
-#: power); coarser spacings keep draft's rate (not measured, and not extrapolated)
+#: falls as (draft spacing / spacing)^0.6 below it (the bundled bead, melt particle-steps a
+#: second, start-up left out, alone, 2026-12-06: draft 35,000, standard 23,300, fine 25,700;
+#: the power's least-squares fit through draft); coarser spacings keep draft's rate (not
+#: measured, and not extrapolated)
 COUPLED_RATE_SPACING_M = RESOLUTION_PRESETS["draft"]["run"]["spacing_mm"] * 1e-3
-COUPLED_RATE_EXPONENT = 1.3
+COUPLED_RATE_EXPONENT = 0.6
 #: kernel compilation and set-up before the first step (s), from the same runs
 STARTUP_S = 10.0
 #: measured wall time / estimate: the DFSPH rate is an older single-bead rate (the default
-#: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve's ladder
-#: and benchy's window came out at 1.0-1.3x theirs (validation/trade, before 8c21d14); with
+#: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve, counting
+#: melt particle-steps: the bundled bead at draft / standard / fine 0.95 / 1.15 / 0.78x,
+#: benchy's 4 x 4 mm window 0.86x, the unscaled paper block 1.07x (alone, 2026-12-06); with
 #: the surface traction, earlier runs at 1.3-1.5x and the collapse, its steps set by its
-#: motion, at 0.4-1.0x (0.5 to 0.3 mm, 2026-12-05)
-ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.7, 1.5),
+#: motion, at 0.4-1.1x (0.3 to 0.5 mm, 2026-12-05/06)
+ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.75, 1.2),
                    "dfsph-coupled-traction": (0.4, 1.5)}
 
 
@@ -122,6 +126,9 @@ class Simulation:
                 "the limit.")
         self._built = False
         self.skipped: list[dict] = []
+        self.lost_particles = 0
+        self.lost_by_face: dict[str, int] = {}
+        self.lost_times_s: list[float] = []  # first and last time melt was lost
         self.resumed = False
         self._description = None
         self.time_s = self.plan.t_start_s
@@ -252,8 +259,11 @@ class Simulation:
         dt, limits = self._dt_guess(H)
         dt *= run.dt_factor  # the run multiplies every limit by it
         steps = int(np.ceil((span - idle) / dt)) if dt > 0 else 0
+        initial_melt = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
+        # the melt grows with the deposition; without a commanded volume, linearly
+        melt_steps = steps * (initial_melt + 0.5 * inflow)
         if self.plan.wall_speed_m_s is not None and run.scheme == "dfsph" and span > idle:
-            steps = self._steps_along_the_walls(limits)
+            steps, melt_steps = self._steps_along_the_walls(limits, initial_melt)
             dt = (span - idle) / max(steps, 1)
         if self.plan.travel_m is not None and run.scheme == "dfsph":
             # the CFL step follows the melt's speed, which decays as a slump creeps: count the
@@ -262,6 +272,7 @@ class Simulation:
             by_travel = int(np.ceil((self.plan.travel_m / (run.dfsph.cfl * 0.4 * dx)
                                      + (span - idle) / limits["max"]) / run.dt_factor))
             if by_travel < steps:
+                melt_steps *= by_travel / steps
                 steps, dt = by_travel, (span - idle) / by_travel
         warn = []
         if "viscous" in limits and limits["viscous"] < 0.1 * limits["cfl"]:
@@ -275,14 +286,17 @@ class Simulation:
                 "list_skin": skin,
                 "idle_s": idle,
                 "steps_estimate": steps,
-                "wall_time_estimate_s": self._wall_estimate(initial, inflow, steps),
+                "melt_particle_steps_estimate": float(melt_steps),
+                "wall_time_estimate_s": self._wall_estimate(initial, inflow, steps, melt_steps),
                 "kernel": kernel, "support_radius_m": H, "max_neighbours": max_nbr}
 
-    def _steps_along_the_walls(self, limits: dict) -> int:
+    def _steps_along_the_walls(self, limits: dict, initial_melt: int) -> tuple[int, float]:
         """Steps of the solver's CFL rule on the walls' speed as it goes (a print: the nozzle
         speeds up, slows down and travels; its peak held throughout counted benchy's 4 x 4 mm
         window at 14,090 steps, which took 7,864-8,452), summed over the spans the run does
-        not skip, on samples 0.1 ms apart (at most a million: coarser over a long print)."""
+        not skip, on samples 0.1 ms apart (at most a million: coarser over a long print); and
+        the melt particle-steps over them, the melt being what the scene starts with and the
+        commanded volume deposited by then."""
         run = self.run_opts
         t0, t1 = self.plan.t_start_s, self.plan.t_end_s
         n = int(min(max(np.ceil((t1 - t0) / 1e-4), 1000), 1_000_000))
@@ -294,12 +308,20 @@ class Simulation:
                 keep &= ~((times >= a) & (times < b))
         speed = np.maximum(self.plan.wall_speed_m_s(times[keep]), 1e-9)
         cfl = run.dfsph.cfl * 0.4 * run.spacing_m / speed
-        dt = np.minimum(cfl, limits.get("max", np.inf)) * run.dt_factor
-        return int(np.ceil(np.sum(h / dt)))
+        per_sample = h / (np.minimum(cfl, limits.get("max", np.inf)) * run.dt_factor)
+        melt = np.full(per_sample.shape, float(initial_melt))
+        if self.plan.commanded_volume_m3 is not None:
+            # the commanded volume on a coarse grid (a call each), in particles
+            coarse = np.linspace(t0, t1, 401)
+            volume = np.array([self.plan.commanded_volume_m3(t) for t in coarse])
+            melt += np.interp(times[keep], coarse, volume) / run.spacing_m**3
+        return int(np.ceil(np.sum(per_sample))), float(np.sum(per_sample * melt))
 
-    def _wall_estimate(self, initial: int, inflow: int, steps: float) -> float | None:
+    def _wall_estimate(self, initial: int, inflow: int, steps: float,
+                       melt_steps: float) -> float | None:
         """Wall time (s) from the measured rates: the melt grows linearly during deposition,
-        so a run costs about (initial + inflow / 2) particles x steps. None on a GPU (not
+        so a run costs about (initial + inflow / 2) particles x steps; the coupled solve's cost
+        is in its melt rows, so it counts the melt particle-steps alone. None on a GPU (not
         measured)."""
         run = self.run_opts
         key = self._rate_key()
@@ -307,8 +329,10 @@ class Simulation:
             return None
         threads = run.cpu_threads or os.cpu_count() or 2
         rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
-        if key == "dfsph-coupled":
-            rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
+        if key.startswith("dfsph-coupled"):
+            if key == "dfsph-coupled":
+                rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
+            return STARTUP_S + melt_steps / rate
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
@@ -504,6 +528,10 @@ class Simulation:
             self.inlet.mark_rebuilt()
         if lost:
             self.lost_particles += lost
+            for face, count in self.grid.lost_last.items():
+                self.lost_by_face[face] = self.lost_by_face.get(face, 0) + count
+            self.lost_times_s = [self.lost_times_s[0] if self.lost_times_s else self.time_s,
+                                 self.time_s]
         if self.grid.overflowed():
             raise SimulationDiverged(
                 f"At t = {self.time_s:.6g} s, {self.grid.overflowed()} particles had more than "
@@ -615,6 +643,8 @@ class Simulation:
         every = run.output_every_s or span / (run.animation_frames if run.animation else 10.0)
         if not self.resumed:
             self.lost_particles = 0
+            self.lost_by_face = {}
+            self.lost_times_s = []
             self._inlet_retired = False
             self.skipped = []
         writer = self._open_writer()
@@ -928,6 +958,10 @@ class Simulation:
             "particles_active": int(self.state.n),
             "particles_by_phase": counts,
             "particles_lost": int(self.lost_particles),
+            # where and when: the face of the domain each left by (grid.LOST_FACES), and the
+            # first and last time melt was lost
+            "particles_lost_by_face": dict(self.lost_by_face),
+            "particles_lost_between_s": [float(t) for t in self.lost_times_s],
             "deposited_volume_mm3": melt * vol_particle * 1e9,
             "simulated_time_s": float(self.time_s - self.plan.t_start_s),
             "end_time_s": float(self.time_s),
