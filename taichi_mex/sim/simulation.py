@@ -56,8 +56,8 @@ STARTUP_S = 10.0
 #: measured wall time / estimate: the DFSPH rate is an older single-bead rate (the default
 #: bead ran 3.5x faster, the paper blocks at 1.0-1.1x its time); the coupled solve, counting
 #: melt particle-steps: the bundled bead at draft / standard / fine 0.95 / 1.15 / 0.78x,
-#: benchy's 4 x 4 mm window 0.86-0.97x, the unscaled paper block 1.07-1.17x, block_3x3
-#: 1.13x (alone, 2026-12-06); with
+#: benchy's 4 x 4 mm window 0.86-1.03x, the unscaled paper block 1.07-1.17x, block_3x3
+#: 1.06-1.13x (alone, 2026-12-06); with
 #: the surface traction, earlier runs at 1.3-1.5x and the collapse, its steps set by its
 #: motion, at 0.4-1.1x (0.3 to 0.5 mm, 2026-12-05/06)
 ESTIMATE_SPREAD = {"dfsph": (0.3, 1.1), "dfsph-coupled": (0.75, 1.2),
