@@ -127,8 +127,8 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
     assert bad[0].startswith("11 melt particles left the domain: melt carried off")
     where = run_warnings({"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
                           "particles_lost_between_s": [0.5, 1.25]}, run)
-    assert where[0].startswith("3 melt particles left the domain (2 through top, 1 through x min) "
-                               "at t = 0.5-1.25 s")
+    assert where[0].startswith("3 melt particles left the domain (2 through top, 1 through x min, "
+                               "t = 0.5-1.25 s): melt carried off")
     from taichi_mex.post.report import _health  # and the report's health table says the same
     assert "3 (2 through top, 1 through x min, t = 0.5-1.25 s)" in _health(
         {"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},

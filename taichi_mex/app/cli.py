@@ -112,12 +112,11 @@ def run_warnings(summary: dict, run) -> list[str]:
     out = []
     lost = summary.get("particles_lost", 0)
     if lost:
-        faces = ", ".join(f"{n} through {face.replace('_', ' ')}" for face, n in
-                          summary.get("particles_lost_by_face", {}).items())
-        span = summary.get("particles_lost_between_s") or []
-        when = f" at t = {span[0]:.4g}-{span[1]:.4g} s" if len(span) == 2 else ""
-        out.append(f"{lost} melt particles left the domain" + (f" ({faces})" if faces else "")
-                   + when + ": melt carried off the nozzle or the part")
+        from taichi_mex.post.report import lost_melt_where
+
+        where = lost_melt_where(summary)
+        out.append(f"{lost} melt particles left the domain" + (f" ({where})" if where else "")
+                   + ": melt carried off the nozzle or the part")
     worst = summary.get("viscosity_residual_worst")
     tol = run.dfsph.viscosity_tolerance
     if worst is not None and worst > 10 * tol:

@@ -126,6 +126,17 @@ def _sections(meso: dict | None, plan, config) -> str:
     return "\n".join(parts)
 
 
+def lost_melt_where(summary: dict) -> str:
+    """Where and when melt left the domain, e.g. '2 through top, 1 through x min, t =
+    0.5-1.25 s'; '' where the run recorded neither."""
+    parts = [f"{n} through {face.replace('_', ' ')}"
+             for face, n in (summary.get("particles_lost_by_face") or {}).items()]
+    span = summary.get("particles_lost_between_s") or []
+    if len(span) == 2:
+        parts.append(f"t = {span[0]:.4g}-{span[1]:.4g} s")
+    return ", ".join(parts)
+
+
 def _health(summary: dict) -> str:
     """The solver's figures this run recorded; a row whose figures the run did not record (a
     scheme without that solve) is left out."""
@@ -134,11 +145,7 @@ def _health(summary: dict) -> str:
         return None if value is None else f"{_num(100 * value, 3)} %"
 
     lost = summary.get("particles_lost", 0)
-    where = ", ".join(f"{n} through {face.replace('_', ' ')}"
-                      for face, n in (summary.get("particles_lost_by_face") or {}).items())
-    span = summary.get("particles_lost_between_s") or []
-    if len(span) == 2:
-        where += f", t = {span[0]:.4g}-{span[1]:.4g} s"
+    where = lost_melt_where(summary)
     redone = summary.get("unconverged_solves_redone") or {}
     rows = [
         ["particles lost", [_verdict(not lost, f"{lost}" + (f" ({where})" if where else ""))]],
