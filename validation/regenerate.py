@@ -276,13 +276,18 @@ def _deposited(r) -> str:
     return f"{melt:.4f} / {cmd:.4f} ({100 * (melt / cmd - 1):+.1f} %)"
 
 
+def _estimate_over_wall(r) -> str:
+    """The estimate printed before the run over the run's wall time ('-' where there is none)."""
+    wall = (r.get("estimate") or {}).get("wall_time_estimate_s")
+    return f"{wall / r['wall_time_s']:.2f}" if wall and r.get("wall_time_s") else "-"
+
+
 WINDOW = COMMON + [
     ("window s / skipped s", lambda r: f"{r['simulated_time_s']:.2f} / {r.get('skipped_time_s', 0):.2f}"),
     ("melt deposited / commanded mm^3", _deposited),
     ("estimate / measured: steps, wall", lambda r: (
-        f"{r['estimate']['steps_estimate'] / r['steps']:.2f}, "
-        + (f"{r['estimate']['wall_time_estimate_s'] / r['wall_time_s']:.2f}"
-           if r['estimate'].get('wall_time_estimate_s') else "-")) if r.get("estimate") and r.get("steps") else ""),
+        f"{r['estimate']['steps_estimate'] / r['steps']:.2f}, " + _estimate_over_wall(r))
+     if r.get("estimate") and r.get("steps") else ""),
     ("melt particle-steps/s", num("melt_particle_steps_per_s")),
     ("fastest melt m/s; steps at 2-4x / >4x the nozzle", lambda r: (
         f"{r['melt_speed_max_m_s']:.3f}; {r['melt_faster_than_walls_steps']['2-4x']:,} / "
@@ -292,9 +297,7 @@ WINDOW = COMMON + [
 #: issue 15's blocks: to the end, nothing lost, every solve converged, sections without voids,
 #: bead heights within 10 % of the layer; and the estimate printed before the run
 BLOCKS = COMMON + [
-    ("estimate / measured wall", lambda r: (
-        f"{r['estimate']['wall_time_estimate_s'] / r['wall_time_s']:.2f}"
-        if (r.get("estimate") or {}).get("wall_time_estimate_s") and r.get("wall_time_s") else "-")),
+    ("estimate / measured wall", _estimate_over_wall),
     ("melt deposited / commanded mm^3", _deposited),
     ("section W / H mm (nine sections)", lambda r: f"{r.get('bead_width_mm') or float('nan'):.3f} / "
      f"{r.get('bead_height_mm') or float('nan'):.3f}"),

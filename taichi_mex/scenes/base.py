@@ -89,8 +89,9 @@ class ScenePlan:
     def origin_m(self) -> np.ndarray:
         return 0.5 * (self.domain_lo_m + self.domain_hi_m)
 
-    def initial_count(self) -> int:
-        return int(sum(len(b.position_m) for b in self.blocks))
+    def initial_count(self, *phases: int) -> int:
+        """Particles the scene starts with: all of them, or those of the given phases."""
+        return int(sum(len(b.position_m) for b in self.blocks if not phases or b.phase in phases))
 
 
 def box_walls(lo_m, hi_m, spacing_m: float, layers: int, open_top: bool = True) -> np.ndarray:

@@ -229,7 +229,7 @@ class Simulation:
         capacity = int(1.02 * (initial + inflow + inlet_extra)) + 64
         # only the inlet turns particles into melt: plate, nozzle and solid never melt, so the
         # rest bounds the melt rows of the coupled solve, whose Krylov vectors are stored by row
-        walls = sum(len(b.position_m) for b in self.plan.blocks if b.phase in (PLATE, NOZZLE, SOLID))
+        walls = self.plan.initial_count(PLATE, NOZZLE, SOLID)
         melt_capacity = max(capacity - walls, 64)
         ext = self.plan.domain_hi_m - self.plan.domain_lo_m
         n_cells = int(np.prod(np.ceil(2 * ext / H)))  # cells of half the support radius
@@ -260,7 +260,7 @@ class Simulation:
         dt, limits = self._dt_guess(H)
         dt *= run.dt_factor  # the run multiplies every limit by it
         steps = int(np.ceil((span - idle) / dt)) if dt > 0 else 0
-        initial_melt = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
+        initial_melt = self.plan.initial_count(FLUID)
         # the melt grows with the deposition; without a commanded volume, linearly
         melt_steps = steps * (initial_melt + 0.5 * inflow)
         if self.plan.wall_speed_m_s is not None and run.scheme == "dfsph" and span > idle:
@@ -472,9 +472,9 @@ class Simulation:
             self.inlet = NozzleInlet(self.state, spec.selection, dx, self.kernel.H, self.mass,
                                      spec.z_offset_m, spec.tip_outer_diameter_m,
                                      spec.flank_angle_deg, spec.body_height_m)
-        self._initial_fluid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == FLUID)
+        self._initial_fluid = self.plan.initial_count(FLUID)
         # the substrate below a print window's layer: melt printed before the run, not deposited
-        self._initial_solid = sum(len(b.position_m) for b in self.plan.blocks if b.phase == SOLID)
+        self._initial_solid = self.plan.initial_count(SOLID)
         self.place(self.plan.blocks)
         if self.inlet is not None:
             self.inlet.build_tip(self.plan.t_start_s)
