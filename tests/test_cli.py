@@ -134,3 +134,13 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
         {"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
          "particles_lost_between_s": [0.5, 1.25]})
     assert "1.7 against 0.001" in bad[1] and "viscosity_max_iterations (500)" in bad[1]
+    carried = {"particles_lost": 0, "melt_over_face_fraction_max": 0.231,
+               "melt_over_face_max_at_s": 1.664, "melt_over_face_fraction": 0.108,
+               "melt_over_face_at_s": 2.555}
+    on = run_warnings(carried, run)
+    assert len(on) == 1 and on[0].startswith(
+        "melt stood over the nozzle's tip face (23 % of the melt at t = 1.664 s, 11 % at "
+        "t = 2.555 s)")
+    assert run_warnings({**carried, "melt_over_face_fraction_max": 0.009}, run) == []
+    assert "23 % of the melt at t = 1.664 s" in _health(carried)
+    assert "none" in _health({**carried, "melt_over_face_fraction_max": 0.0})

@@ -237,6 +237,9 @@ def test_the_coupled_solve_is_estimated_at_its_own_measured_rate():
                                         / MEASURED_RATE_2CORE["dfsph-coupled"])
     assert work(coupled) / work(plain) == pytest.approx(MEASURED_RATE_2CORE["dfsph-coupled"]
                                                         / MEASURED_RATE_2CORE["dfsph-coupled-traction"])
+    # measured on 2 cores, mostly on one thread (serial_rows): no more threads, no gain assumed
+    for threads in (1, 8):
+        assert work(sim(**{"run.cpu_threads": threads})) == pytest.approx(work(plain))
     # its iterations a step grow with the resolution (36 / 77 GMRES a step at 3 / 6 per gap)
     fine = sim(resolution="fine")
     per_step = lambda s: work(s) / s.estimate["steps_estimate"]  # noqa: E731
@@ -252,3 +255,30 @@ def test_the_estimate_counts_the_steps_dt_factor_asks_for():
     one = steps(1.0)
     assert steps(0.5) == pytest.approx(2 * one, abs=2)
     assert steps(2.0) == pytest.approx(one / 2, abs=2)
+
+
+def test_melt_over_the_nozzles_tip_face_is_counted():
+    """A print lays its melt under the nozzle's face: melt more than a spacing above the
+    face's plane rides on the nozzle (strings, blobs) or stands in its way, and the run
+    reports how much."""
+    from taichi_mex.core.state import FLUID
+
+    scene = PrintScene(bundled.gcode_path("single_bead"), until_s=0.32)
+    sim = Simulation(scene, RunOptions(**PAPER), PAPER_MELT)
+    sim.build()
+    t = scene.selection.t_start_s + 0.01
+    sim.inlet.advance(t)
+    tip = sim.inlet.nozzle_state(t)[0]
+    dx = sim.run_opts.spacing_m
+    beside = tip + np.array([0.6e-3, 0.0, 0.0])  # past the 0.5 mm tip radius, by the flank
+    heights = np.array([3.0, 1.5, 0.5, -1.0]) * dx  # over the face's plane
+    sim.state.append(beside + np.outer(heights, [0.0, 0.0, 1.0]), FLUID, 1e-12)
+    assert sim.inlet.melt_over_face() == 2
+    sim._track_melt_over_face(t)
+    assert sim.over_face["particles"] == 2 and sim.over_face["time_s"] == t
+    # a nozzle without its tip carries nothing
+    bare = Simulation(PrintScene(bundled.gcode_path("single_bead"), until_s=0.32,
+                                 nozzle_tip_outer_diameter_mm=None), RunOptions(**PAPER), PAPER_MELT)
+    bare.build()
+    bare.inlet.advance(t)
+    assert bare.inlet.melt_over_face() == 0

@@ -276,6 +276,17 @@ def _deposited(r) -> str:
     return f"{melt:.4f} / {cmd:.4f} ({100 * (melt / cmd - 1):+.1f} %)"
 
 
+def _over_face(r) -> str:
+    """The most melt over the nozzle's tip face at any step (when), and at the last step with a
+    nozzle, in per cent of the run's melt; '' for a run that did not record it."""
+    if "melt_over_face_fraction_max" not in r:
+        return ""
+    if not r["melt_over_face_fraction_max"]:
+        return "0 / 0 %"
+    return (f"{100 * r['melt_over_face_fraction_max']:.1f} % ({r['melt_over_face_max_at_s']:.2f}) / "
+            f"{100 * r['melt_over_face_fraction']:.1f} %")
+
+
 def _estimate_over_wall(r) -> str:
     """The estimate printed before the run over the run's wall time ('-' where there is none)."""
     wall = (r.get("estimate") or {}).get("wall_time_estimate_s")
@@ -291,7 +302,8 @@ WINDOW = COMMON + [
     ("melt particle-steps/s", num("melt_particle_steps_per_s")),
     ("fastest melt m/s; steps at 2-4x / >4x the nozzle", lambda r: (
         f"{r['melt_speed_max_m_s']:.3f}; {r['melt_faster_than_walls_steps']['2-4x']:,} / "
-        f"{r['melt_faster_than_walls_steps']['>4x']:,}") if r.get("melt_faster_than_walls_steps") else "")
+        f"{r['melt_faster_than_walls_steps']['>4x']:,}") if r.get("melt_faster_than_walls_steps") else ""),
+    ("melt over the nozzle's face: most (t s) / last", _over_face),
     ] + LOSSES[:1] + COUPLED_SOLVE
 
 #: issue 15's blocks: to the end, nothing lost, every solve converged, sections without voids,
@@ -302,6 +314,8 @@ BLOCKS = COMMON + [
     ("section W / H mm (nine sections)", lambda r: f"{r.get('bead_width_mm') or float('nan'):.3f} / "
      f"{r.get('bead_height_mm') or float('nan'):.3f}"),
     ("section voids", pct("void_fraction", 0)),
+    # melt over the nozzle's tip face: carried up on it, or laid over the layer it prints
+    ("melt over the nozzle's face: most (t s) / last", _over_face),
     ("fastest melt m/s", num("melt_speed_max_m_s", "{:.3f}")),
     ("worst viscous residual", num("viscosity_residual_worst", "{:.2g}")),
     ] + COUPLED_SOLVE

@@ -117,6 +117,13 @@ def run_warnings(summary: dict, run) -> list[str]:
         where = lost_melt_where(summary)
         out.append(f"{lost} melt particles left the domain" + (f" ({where})" if where else "")
                    + ": melt carried off the nozzle or the part")
+    from taichi_mex.post.report import OVER_FACE_WARN, melt_over_face_text
+
+    if summary.get("melt_over_face_fraction_max", 0.0) >= OVER_FACE_WARN:
+        out.append(f"melt stood over the nozzle's tip face ({melt_over_face_text(summary)}): "
+                   "strings and blobs the nozzle lifts and drags, or laid over the part above "
+                   "the layer it prints; nothing here breaks a thread (a retraction draws no "
+                   "melt back, and melt stays molten with heat off)")
     worst = summary.get("viscosity_residual_worst")
     tol = run.dfsph.viscosity_tolerance
     if worst is not None and worst > 10 * tol:

@@ -137,6 +137,25 @@ def lost_melt_where(summary: dict) -> str:
     return ", ".join(parts)
 
 
+#: the share of a run's melt over the nozzle's tip face at any step from which the command
+#: line warns: a reporting choice (a bead's melt stays under the face; the blocks, printed
+#: without retraction, reached 10-23 %, validation/blocks), not a physical limit
+OVER_FACE_WARN = 0.01
+
+
+def melt_over_face_text(summary: dict) -> str:
+    """How much melt stood over the nozzle's tip face, most and at the last step with a
+    nozzle, e.g. '23 % of the melt at t = 1.66 s, 11 % at t = 2.56 s'; '' where the run has
+    no nozzle tip."""
+    if "melt_over_face_fraction_max" not in summary:
+        return ""
+    most, end = summary["melt_over_face_fraction_max"], summary["melt_over_face_fraction"]
+    if most == 0:
+        return "none"
+    return (f"{100 * most:.2g} % of the melt at t = {summary['melt_over_face_max_at_s']:.4g} s, "
+            f"{100 * end:.2g} % at t = {summary['melt_over_face_at_s']:.4g} s")
+
+
 def _health(summary: dict) -> str:
     """The solver's figures this run recorded; a row whose figures the run did not record (a
     scheme without that solve) is left out."""
@@ -149,6 +168,9 @@ def _health(summary: dict) -> str:
     redone = summary.get("unconverged_solves_redone") or {}
     rows = [
         ["particles lost", [_verdict(not lost, f"{lost}" + (f" ({where})" if where else ""))]],
+        ["melt over the nozzle's tip face (carried up, or in its way): most / last", [_verdict(
+            summary.get("melt_over_face_fraction_max", 0.0) < OVER_FACE_WARN,
+            melt_over_face_text(summary)) if "melt_over_face_fraction_max" in summary else None]],
         ["deposited / commanded volume (mm³)",
          [_num(summary.get("deposited_volume_mm3")), _num(summary.get("commanded_volume_mm3"))]],
         ["density error, interior melt: mean / max",

@@ -106,6 +106,7 @@ def save(sim, description: dict) -> Path:
             "capacity": cap, "n": n, "fields": arrays, "values": values,
             "run": {"time_s": sim.time_s, "steps": sim.steps, "lost_particles": sim.lost_particles,
                     "lost_by_face": sim.lost_by_face, "lost_times_s": sim.lost_times_s,
+                    "over_face": sim.over_face,
                     "inlet_retired": sim._inlet_retired, "skipped": sim.skipped}}
     path = Path(sim.out_dir) / FILE
     tmp = path.with_name(path.name + ".tmp")
@@ -167,6 +168,7 @@ def restore(sim, data: dict) -> None:
     sim.lost_particles = run["lost_particles"]
     sim.lost_by_face = run.get("lost_by_face", {})  # checkpoints before 2026-12-06 lack them
     sim.lost_times_s = run.get("lost_times_s", [])
+    sim.over_face = {**sim.over_face, **run.get("over_face", {})}  # since 2026-12-06 (later)
     sim._inlet_retired = run["inlet_retired"]
     sim.skipped = run["skipped"]
     sim.grid.stale = True

@@ -16,7 +16,7 @@ import numpy as np
 
 from taichi_mex.backend import real_np_dtype, ti
 from taichi_mex.sim.boundaries import column_slices, disc_lattice, nozzle_tip_lattice
-from taichi_mex.core.state import FLUID, INLET, NOZZLE
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID
 
 
 @ti.data_oriented
@@ -42,6 +42,7 @@ class NozzleInlet:
         self.released_count = 0
         self._ref = None  # nozzle tip and column travel at the last neighbour-list rebuild
         self._now = (np.zeros(3), 0.0)
+        self._moved = False  # _now holds where advance() last put the nozzle
         self.speed = 0.0
         self.bead_intervals = self.traj.extruding_intervals()
         self._bead_starts = self.bead_intervals[:, 0].tolist()
@@ -112,6 +113,7 @@ class NozzleInlet:
             self._set_offsets(sl.start, pts, k)
             self.slices_spawned += 1
         self._now = (pos, travel)
+        self._moved = True
         self.speed = float(np.linalg.norm(vel)) + w
         o = self.state.origin_m
         released = self._move(self.state.n, pos[0] - o[0], pos[1] - o[1], pos[2] - o[2], vel[0],
@@ -160,6 +162,24 @@ class NozzleInlet:
     @property
     def released_volume_m3(self) -> float:
         return self.released_particles * self.dx**3
+
+    def melt_over_face(self) -> int:
+        """Melt particles more than a spacing above the plane of the tip face, where the
+        nozzle was last moved to. A print lays its melt under the face, so melt over it was
+        either carried up on the nozzle (strings, blobs) or stands over the layer the nozzle
+        prints, in its way (validation/blocks). 0 for a nozzle without a tip."""
+        if self._tip_outer_r is None or self.nozzle_particles == 0 or not self._moved:
+            return 0
+        z = float(self._now[0][2] + self.dx - self.state.origin_m[2])
+        return int(self._count_above(self.state.n, z))
+
+    @ti.kernel
+    def _count_above(self, n: ti.i32, z: float) -> ti.i32:
+        count = 0
+        for i in range(n):
+            if (self.state.phase[i] == FLUID or self.state.phase[i] == SOLID) and self.state.x[i][2] > z:
+                count += 1
+        return count
 
     def retire(self) -> None:
         """Remove the column and tip (after the last deposition): they leave at the next sort."""

@@ -130,6 +130,7 @@ class Simulation:
         self.lost_particles = 0
         self.lost_by_face: dict[str, int] = {}
         self.lost_times_s: list[float] = []  # first and last time melt was lost
+        self.over_face = _over_face_record()
         self.resumed = False
         self._description = None
         self.time_s = self.plan.t_start_s
@@ -331,6 +332,11 @@ class Simulation:
         threads = run.cpu_threads or os.cpu_count() or 2
         rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
         if key.startswith("dfsph-coupled"):
+            # not scaled with the threads: the 2-core rate is mostly one thread's (the solve's
+            # loops stay on the calling thread below stokes' serial_rows, 8,192 melt rows on 2
+            # cores), and how its loops scale on more cores has not been measured; an estimate
+            # that assumed they did could promise a many-core user a fraction of the time
+            rate = MEASURED_RATE_2CORE[key]
             if key == "dfsph-coupled":
                 rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
             return STARTUP_S + melt_steps / rate
@@ -392,6 +398,9 @@ class Simulation:
         if key in ESTIMATE_SPREAD:
             lo, hi = ESTIMATE_SPREAD[key]
             spread = f"; measured runs took {lo:g}-{hi:g}x such estimates"
+        if key.startswith("dfsph-coupled"):  # see _wall_estimate: its rate is 2 cores'
+            return (f"; about {text} of wall time at the rates measured for {key} "
+                    f"(validation/trade) on 2 cores, not scaled to {threads} CPU thread(s){spread}")
         return (f"; about {text} of wall time on {threads} CPU thread(s) at the rates measured "
                 f"for {key} (validation/trade){spread}")
 
@@ -540,6 +549,17 @@ class Simulation:
                 "rest spacing. " + self._likely_cause())
         self.viscosity.update(self.state.n)
 
+    def _track_melt_over_face(self, t: float) -> None:
+        """The melt over the nozzle's tip face (NozzleInlet.melt_over_face) after this step,
+        and the step with the most: a count each step, the same whatever the output interval."""
+        count = self.inlet.melt_over_face()
+        melt = self.melt_particles()
+        fraction = count / melt if melt > 0 else 0.0
+        rec = self.over_face
+        rec.update(particles=count, fraction=fraction, time_s=t)
+        if fraction > rec["max_fraction"]:
+            rec.update(max_fraction=fraction, max_particles=count, max_time_s=t)
+
     def boundary_speed(self) -> float:
         """Fastest moving wall (the nozzle and the melt sliding down its bore), m/s."""
         speed = self.inlet.speed if self.inlet is not None and not self._inlet_retired else 0.0
@@ -646,6 +666,7 @@ class Simulation:
             self.lost_particles = 0
             self.lost_by_face = {}
             self.lost_times_s = []
+            self.over_face = _over_face_record()
             self._inlet_retired = False
             self.skipped = []
         writer = self._open_writer()
@@ -698,6 +719,8 @@ class Simulation:
                 self.steps += 1
                 particle_steps += self.state.n
                 melt_steps += self.melt_particles()
+                if self.inlet is not None and not self._inlet_retired:
+                    self._track_melt_over_face(t)
                 if self.inlet is not None and not self._inlet_retired and t > self.plan.inlet.selection.t_end_s:
                     self.inlet.retire()
                     self._inlet_retired = True
@@ -984,6 +1007,17 @@ class Simulation:
             out["commanded_volume_mm3"] = float(self.plan.commanded_volume_m3(self.time_s)) * 1e9
         if self.inlet is not None:
             out["released_volume_mm3"] = self.inlet.released_volume_m3 * 1e9
+            if self.over_face["time_s"] is not None:
+                rec = self.over_face
+                # melt over the tip face: at the last step the nozzle was present (it leaves
+                # with the selection's last move), and the most at any step
+                out["melt_over_face_particles"] = int(rec["particles"])
+                out["melt_over_face_fraction"] = float(rec["fraction"])
+                out["melt_over_face_at_s"] = float(rec["time_s"])
+                out["melt_over_face_fraction_max"] = float(rec["max_fraction"])
+                out["melt_over_face_particles_max"] = int(rec["max_particles"])
+                out["melt_over_face_max_at_s"] = (None if rec["max_time_s"] is None
+                                                  else float(rec["max_time_s"]))
         out.update(self.density_errors())
         out.update({f"creeping_{k}" if not k.startswith("viscosity") else k: v
                     for k, v in self.creeping.items()})
@@ -995,6 +1029,13 @@ class Simulation:
         if hasattr(self.scene, "analyse"):
             out.update(self.scene.analyse(self))
         return out
+
+
+def _over_face_record() -> dict:
+    """Melt over the nozzle's tip face: the latest step's count and fraction of the run's
+    melt, and the step that had the most (time None: no step with a nozzle yet)."""
+    return {"particles": 0, "fraction": 0.0, "time_s": None, "max_fraction": 0.0,
+            "max_particles": 0, "max_time_s": None}
 
 
 def _after(t0: float, every: float, t: float) -> float:
