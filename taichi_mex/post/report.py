@@ -139,7 +139,7 @@ def lost_melt_where(summary: dict) -> str:
 
 #: the share of a run's melt over the nozzle's tip face at any step from which the command
 #: line warns: a reporting choice (a bead's melt stays under the face; the blocks, printed
-#: without retraction, reached 10-23 %, validation/blocks), not a physical limit
+#: without retraction, reached 24-37 %, validation/blocks), not a physical limit
 OVER_FACE_WARN = 0.01
 
 

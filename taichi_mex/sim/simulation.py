@@ -721,9 +721,9 @@ class Simulation:
                 melt_steps += self.melt_particles()
                 if self.inlet is not None and not self._inlet_retired:
                     self._track_melt_over_face(t)
-                if self.inlet is not None and not self._inlet_retired and t > self.plan.inlet.selection.t_end_s:
-                    self.inlet.retire()
-                    self._inlet_retired = True
+                    if t > self.plan.inlet.selection.t_end_s:
+                        self.inlet.retire()
+                        self._inlet_retired = True
                 if monitor is not None:
                     monitor(self, t)
                 speed = self.solver.max_speed()
