@@ -399,8 +399,9 @@ class Simulation:
             lo, hi = ESTIMATE_SPREAD[key]
             spread = f"; measured runs took {lo:g}-{hi:g}x such estimates"
         if key.startswith("dfsph-coupled"):  # see _wall_estimate: its rate is 2 cores'
+            scaled = "" if threads == 2 else f", not scaled to {threads} CPU thread(s)"
             return (f"; about {text} of wall time at the rates measured for {key} "
-                    f"(validation/trade) on 2 cores, not scaled to {threads} CPU thread(s){spread}")
+                    f"(validation/trade) on 2 cores{scaled}{spread}")
         return (f"; about {text} of wall time on {threads} CPU thread(s) at the rates measured "
                 f"for {key} (validation/trade){spread}")
 
