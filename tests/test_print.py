@@ -275,7 +275,7 @@ def test_melt_over_the_nozzles_tip_face_is_counted():
     sim.state.append(beside + np.outer(heights, [0.0, 0.0, 1.0]), FLUID, 1e-12)
     assert sim.inlet.melt_over_face() == 2
     sim._track_melt_over_face(t)
-    assert sim.over_face["particles"] == 2 and sim.over_face["time_s"] == t
+    assert sim.over_face["melt_over_face_particles"] == 2 and sim.over_face["melt_over_face_at_s"] == t
     # a nozzle without its tip carries nothing
     bare = Simulation(PrintScene(bundled.gcode_path("single_bead"), until_s=0.32,
                                  nozzle_tip_outer_diameter_mm=None), RunOptions(**PAPER), PAPER_MELT)

@@ -109,16 +109,14 @@ def material_line(spec: RunSpec) -> str:
 
 def run_warnings(summary: dict, run) -> list[str]:
     """What went wrong in a run that still finished: lost melt, unconverged viscous solves."""
+    from taichi_mex.post.report import OVER_FACE_WARN, lost_melt_where, melt_over_face_text
+
     out = []
     lost = summary.get("particles_lost", 0)
     if lost:
-        from taichi_mex.post.report import lost_melt_where
-
         where = lost_melt_where(summary)
         out.append(f"{lost} melt particles left the domain" + (f" ({where})" if where else "")
                    + ": melt carried off the nozzle or the part")
-    from taichi_mex.post.report import OVER_FACE_WARN, melt_over_face_text
-
     if summary.get("melt_over_face_fraction_max", 0.0) >= OVER_FACE_WARN:
         out.append(f"melt stood over the nozzle's tip face ({melt_over_face_text(summary)}): "
                    "strings and blobs the nozzle lifts and drags, or laid over the part above "

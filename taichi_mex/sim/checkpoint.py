@@ -168,7 +168,8 @@ def restore(sim, data: dict) -> None:
     sim.lost_particles = run["lost_particles"]
     sim.lost_by_face = run.get("lost_by_face", {})  # checkpoints before 2026-12-06 lack them
     sim.lost_times_s = run.get("lost_times_s", [])
-    sim.over_face = {**sim.over_face, **run.get("over_face", {})}  # since 2026-12-06 (later)
+    # since 2026-12-06 (later); the summary's names only (the first day's used shorter ones)
+    sim.over_face.update({k: v for k, v in run.get("over_face", {}).items() if k in sim.over_face})
     sim._inlet_retired = run["inlet_retired"]
     sim.skipped = run["skipped"]
     sim.grid.stale = True

@@ -168,7 +168,7 @@ class NozzleInlet:
         nozzle was last moved to. A print lays its melt under the face, so melt over it was
         either carried up on the nozzle (strings, blobs) or stands over the layer the nozzle
         prints, in its way (validation/blocks). 0 for a nozzle without a tip."""
-        if self._tip_outer_r is None or self.nozzle_particles == 0 or not self._moved:
+        if self.nozzle_particles == 0 or not self._moved:  # no tip (build_tip adds none)
             return 0
         z = float(self._now[0][2] + self.dx - self.state.origin_m[2])
         return int(self._count_above(self.state.n, z))

@@ -329,17 +329,17 @@ class Simulation:
         key = self._rate_key()
         if run.arch != "cpu" or key not in MEASURED_RATE_2CORE:
             return None
-        threads = run.cpu_threads or os.cpu_count() or 2
-        rate = MEASURED_RATE_2CORE[key] * min(threads, os.cpu_count() or threads) / 2.0
+        rate = MEASURED_RATE_2CORE[key]
         if key.startswith("dfsph-coupled"):
             # not scaled with the threads: the 2-core rate is mostly one thread's (the solve's
             # loops stay on the calling thread below stokes' serial_rows, 8,192 melt rows on 2
             # cores), and how its loops scale on more cores has not been measured; an estimate
             # that assumed they did could promise a many-core user a fraction of the time
-            rate = MEASURED_RATE_2CORE[key]
             if key == "dfsph-coupled":
                 rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
             return STARTUP_S + melt_steps / rate
+        threads = run.cpu_threads or os.cpu_count() or 2
+        rate *= min(threads, os.cpu_count() or threads) / 2.0
         return STARTUP_S + (initial + 0.5 * inflow) * steps / rate
 
     def _rate_key(self) -> str:
@@ -557,9 +557,11 @@ class Simulation:
         melt = self.melt_particles()
         fraction = count / melt if melt > 0 else 0.0
         rec = self.over_face
-        rec.update(particles=count, fraction=fraction, time_s=t)
-        if fraction > rec["max_fraction"]:
-            rec.update(max_fraction=fraction, max_particles=count, max_time_s=t)
+        rec.update(melt_over_face_particles=count, melt_over_face_fraction=fraction,
+                   melt_over_face_at_s=t)
+        if fraction > rec["melt_over_face_fraction_max"]:
+            rec.update(melt_over_face_fraction_max=fraction, melt_over_face_particles_max=count,
+                       melt_over_face_max_at_s=t)
 
     def boundary_speed(self) -> float:
         """Fastest moving wall (the nozzle and the melt sliding down its bore), m/s."""
@@ -1008,17 +1010,10 @@ class Simulation:
             out["commanded_volume_mm3"] = float(self.plan.commanded_volume_m3(self.time_s)) * 1e9
         if self.inlet is not None:
             out["released_volume_mm3"] = self.inlet.released_volume_m3 * 1e9
-            if self.over_face["time_s"] is not None:
-                rec = self.over_face
-                # melt over the tip face: at the last step the nozzle was present (it leaves
-                # with the selection's last move), and the most at any step
-                out["melt_over_face_particles"] = int(rec["particles"])
-                out["melt_over_face_fraction"] = float(rec["fraction"])
-                out["melt_over_face_at_s"] = float(rec["time_s"])
-                out["melt_over_face_fraction_max"] = float(rec["max_fraction"])
-                out["melt_over_face_particles_max"] = int(rec["max_particles"])
-                out["melt_over_face_max_at_s"] = (None if rec["max_time_s"] is None
-                                                  else float(rec["max_time_s"]))
+            # melt over the tip face: at the last step the nozzle was present (it leaves with
+            # the selection's last move), and the most at any step
+            if self.over_face["melt_over_face_at_s"] is not None:
+                out.update(self.over_face)
         out.update(self.density_errors())
         out.update({f"creeping_{k}" if not k.startswith("viscosity") else k: v
                     for k, v in self.creeping.items()})
@@ -1033,10 +1028,12 @@ class Simulation:
 
 
 def _over_face_record() -> dict:
-    """Melt over the nozzle's tip face: the latest step's count and fraction of the run's
-    melt, and the step that had the most (time None: no step with a nozzle yet)."""
-    return {"particles": 0, "fraction": 0.0, "time_s": None, "max_fraction": 0.0,
-            "max_particles": 0, "max_time_s": None}
+    """Melt over the nozzle's tip face, under summary.json's names: the latest step's count
+    and fraction of the run's melt, and the step that had the most (times None: no step with
+    a nozzle yet)."""
+    return {"melt_over_face_particles": 0, "melt_over_face_fraction": 0.0,
+            "melt_over_face_at_s": None, "melt_over_face_fraction_max": 0.0,
+            "melt_over_face_particles_max": 0, "melt_over_face_max_at_s": None}
 
 
 def _after(t0: float, every: float, t: float) -> float:
