@@ -426,15 +426,24 @@ class DFSPHOptions:
     cg_chunk: int = opt(4, help="solver iterations per kernel launch (unrolled; iterations "
                         "after convergence do no work)", check=Range(1, 64, integer=True))
     serial_rows: int | None = opt(
-        None, help="on a CPU, the coupled solve over fewer melt rows than this runs its loops on "
-        "the calling thread (rows; 0: always in parallel; None: 16,384 / the CPU threads). Each "
-        "parallel loop is a hand-off to the thread pool, 0.06-0.1 ms on the 2-core test "
-        "machine with one thread or two, where the bundled bead's solve at draft / standard "
-        "(1,376 / 3,276 melt rows at the end) took 29 / 90 s in one thread against 87 / 142 s "
-        "in parallel. The results agree to the solve's tolerance: to the bit on the squeeze "
-        "film, with the same iteration counts on the bundled bead, while on benchy's window "
-        "the two compiled loops rounded differently (32.4 against 32.9 GMRES iterations a "
-        "step over 691 steps)",
+        None, help="on a CPU, the coupled solve's loops over its rows' own vectors (copies, "
+        "updates, block sums) run on the calling thread below this many melt rows (rows; 0: "
+        "always in parallel; None: 65,536). Each parallel loop is a hand-off to Taichi's thread "
+        "pool, 0.05-0.07 ms on the 2-core test machine, while such a loop over 16,000 rows "
+        "takes 0.017 ms on one thread (2026-12-06). A loop over the neighbours follows "
+        "serial_pair_rows. Results agree to the solve's tolerance: to the bit on the squeeze "
+        "film (test), while on benchy's window the two compiled loops rounded differently "
+        "(32.4 against 32.9 GMRES iterations a step over 691 steps)",
+        check=Either(NONE, Range(0, 10**9, integer=True)))
+    serial_pair_rows: int | None = opt(
+        None, help="on a CPU, the coupled solve's loops over the melt rows' neighbours (the "
+        "operator, the inner solve's, the pressure gradient, Gram-Schmidt's sweeps) run on the "
+        "calling thread below this many melt rows, and every loop with them (rows; 0: always "
+        "in parallel; None: 4,096 on more than one thread, never in parallel on one). On 2 "
+        "cores, the same steps (2026-12-06): the paper block's 8,896 melt rows 36 s in "
+        "parallel against 51-53 s on one thread; the standard bead (up to 3,276 rows) 55.5 s "
+        "from 2,000 rows against 54.6 s on one thread and 59.6 s always in parallel; the "
+        "draft bead (1,376) 19.4 s on one thread against 27.8 s in parallel",
         check=Either(NONE, Range(0, 10**9, integer=True)))
     density_compression_only: bool = opt(
         False, help="the density solve corrects compression only, everywhere, as in the paper "

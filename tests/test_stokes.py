@@ -48,24 +48,27 @@ def test_squeeze_film_velocities_do_not_depend_on_viscosity():
 
 
 def test_serial_and_parallel_loops_give_the_same_bits():
-    """A small melt runs the solve's loops on the calling thread (serial_rows), a large one in
-    parallel: a choice of speed only. Each loop writes its own rows and every sum goes block
-    by block in a fixed order; only the compiled arithmetic may round differently (on
-    benchy's window it did: 32.4 against 32.9 GMRES a step). On this film the solution and
-    iteration counts agree to the bit (the squeeze film: 1,250 melt rows, 5 blocks of 256)."""
+    """A small melt runs the solve's loops on the calling thread, a larger one its loops over
+    neighbours in parallel (serial_pair_rows), a very large one every loop (serial_rows): a
+    choice of speed only. Each loop writes its own rows and every sum goes block by block in
+    a fixed order; only the compiled arithmetic may round differently (on benchy's window it
+    did: 32.4 against 32.9 GMRES a step). On this film the solution and iteration counts
+    agree to the bit (the squeeze film: 1,250 melt rows, 5 blocks of 256)."""
     out = {}
-    for rows in (10**9, 0):
-        sim = _film(1000.0, **{"run.dfsph.serial_rows": rows})
-        out[rows] = _solve(sim)
+    for rows, pair_rows, mode in ((10**9, 10**9, 2), (10**9, 0, 1), (0, 0, 0)):
+        sim = _film(1000.0, **{"run.dfsph.serial_rows": rows, "run.dfsph.serial_pair_rows": pair_rows})
+        out[mode] = _solve(sim)
         st = sim.solver.stokes
-        assert st.rows.n > 2 * st.block and st.serial(st.rows.n) == (rows > 0)
-    (ra, xa, va, fa), (rb, xb, vb, fb) = out[10**9], out[0]
-    assert ra.converged and (ra.iterations, ra.inner_iterations) == (rb.iterations, rb.inner_iterations)
-    assert np.array_equal(xa, xb) and np.array_equal(va, vb)
-    # the force's sum is serial in both, but compiled within a different kernel: its
-    # components may differ in the last bits (measured: 1e-18 N on a y-component that is
-    # zero by symmetry, beside 0.039 N along z)
-    assert np.abs(fa - fb).max() <= 1e-12 * np.abs(fa).max()
+        assert st.rows.n > 2 * st.block and st.serial(st.rows.n) == mode
+    ra, xa, va, fa = out[2]
+    for mode in (1, 0):
+        rb, xb, vb, fb = out[mode]
+        assert ra.converged and (ra.iterations, ra.inner_iterations) == (rb.iterations, rb.inner_iterations)
+        assert np.array_equal(xa, xb) and np.array_equal(va, vb)
+        # the force's sum is serial in all, but compiled within a different kernel: its
+        # components may differ in the last bits (measured: 1e-18 N on a y-component that is
+        # zero by symmetry, beside 0.039 N along z)
+        assert np.abs(fa - fb).max() <= 1e-12 * np.abs(fa).max()
 
 
 def test_squeeze_film_solution_keeps_the_mirror_symmetry():

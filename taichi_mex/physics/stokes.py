@@ -339,6 +339,12 @@ KRYLOV_SWEEP_PASSES = 1.0 / 3.0
 #: system's viscous term and none is given, the rest Weiler's projected one (see "Operators")
 ISOTROPIC_SHARE = 0.1
 
+#: on a CPU, the melt rows from which the solve's loops leave the calling thread (see
+#: serial()): its loops over the rows' own vectors, and its loops over their neighbours with
+#: more than one thread (options serial_rows, serial_pair_rows)
+SERIAL_ROWS = 65536
+SERIAL_PAIR_ROWS = 4096
+
 
 @dataclass
 class StokesResult:
@@ -376,7 +382,7 @@ class CoupledStokes:
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
                        "dots_out", "c2inv", "coef", "tw", "tb", "crho",
                        # the machine's, not the run's: a resume elsewhere takes its own
-                       "on_cpu", "serial_rows")
+                       "on_cpu", "serial_rows", "pair_rows")
 
     def __init__(self, state, grid, kernel, viscosity, viscous, rho0: float, volume_m3: float,
                  spacing_m: float, rows, opts, bulk_modulus_pa: float | None = None,
@@ -505,8 +511,11 @@ class CoupledStokes:
         self.chunk = int(opts.cg_chunk)
         live = current()
         self.on_cpu = live.get("arch", "cpu") == "cpu"
+        threads = max(1, live.get("threads", 1))
         self.serial_rows = int(opts.serial_rows if opts.serial_rows is not None
-                               else 16384 // max(1, live.get("threads", 1)))
+                               else SERIAL_ROWS)
+        self.pair_rows = int(opts.serial_pair_rows if opts.serial_pair_rows is not None
+                             else (SERIAL_PAIR_ROWS if threads > 1 else 10**9))
         self.dots_out = np.zeros(self.m + 1)  # _dots' results for the host (H's column)
         # v_n-1 for the extrapolated initial guess (see "Initial guess"): a state field, so
         # that it moves with the particles' sort and is checkpointed; none without it (every
@@ -652,7 +661,7 @@ class CoupledStokes:
 
     @ti.func
     def _surface_setup(self, n, S: ti.template()):
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             M = ti.Matrix.zero(ti.f64, 3, 3)
@@ -767,13 +776,13 @@ class CoupledStokes:
     def _energy(self, n, S: ti.template()):
         """eacc = L(z's velocity) in the strain-energy form (ghost sums set), with the
         hourglass term: its gradient part rides on T (T_i + P_i), its pair part on hg."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             A = ti.Matrix.zero(ti.f64, 3, 3)
             self.grid.for_each_listed(i, self._strain_task, A)
             self.Ag[i] = A
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             A = self.Ag[i]
@@ -785,13 +794,13 @@ class CoupledStokes:
             # (c_ij = M_i^-1 V grad W_ij), one 3 x 3 read a pair instead of two
             self.T[i] = (T + self._square(acc, 0)) @ self.Minv[i]
             self.hg[i] = ti.Vector([acc[9], acc[10], acc[11]])
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             acc = ti.Vector.zero(ti.f64, 3)
             self.grid.for_each_neighbour(b, self._adjoint_task, acc)
             self.q[b] = acc
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             k = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 6)
@@ -857,7 +866,7 @@ class CoupledStokes:
     def _viscous_of_z(self, n, S: ti.template()):
         """The walls' Shepard sums of z's melt velocities (their ghosts) and, with the surface
         traction, eacc = the strain-energy form's L of z's velocity."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
@@ -871,7 +880,7 @@ class CoupledStokes:
         """out = A z on the melt rows (z: the preconditioned vector)."""
         self._viscous_of_z(n, S)
         dt = self.dt[None]
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 7)
@@ -888,7 +897,7 @@ class CoupledStokes:
     @ti.func
     def _precondition(self, n, v: ti.template(), S: ti.template()):
         """z = M^-1 v on the melt rows."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             vi = v[slot]
@@ -1002,13 +1011,13 @@ class CoupledStokes:
         """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
         r = rhs, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it has stopped
         already (rz = 0, or no iteration allowed)."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, slot]
             self.kpart[i] = -self.sigma[i] * v[3]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, self.kpart[i]])
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, slot]
@@ -1043,7 +1052,7 @@ class CoupledStokes:
     def _inner_blocks(self, n, which, S: ti.template()):
         """r . cg_z (which 0) or p . q (which 1): block by block, then the blocks in order."""
         nb = (n + self.block - 1) // self.block
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -1076,12 +1085,12 @@ class CoupledStokes:
         its start, or max_it iterations, or p . q <= 0 (rounding at convergence: A~ is
         positive definite), which leaves x and r alone. Returns whether it has stopped."""
         for _step in ti.static(range(self.chunk)):
-            ti.loop_config(serialize=S)
+            ti.loop_config(serialize=S > 0)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     self.cg_p[i] = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
-            ti.loop_config(serialize=S)
+            ti.loop_config(serialize=S > 1)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
@@ -1099,14 +1108,14 @@ class CoupledStokes:
         and the hourglass term as _apply has them (its four passes over the melt: one launch
         an iteration, so that none is spent after the stop). z carries p's velocity meanwhile;
         _inner_finish puts z back."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             p = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
             self.cg_p[i] = p
             self.z[i] = ti.Vector([p[0], p[1], p[2], 0.0])
         self._viscous_of_z(n, S)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.cg_q[slot] = self.cg_p[i] - self.dt[None] * self.eacc[i]
@@ -1125,7 +1134,7 @@ class CoupledStokes:
                     self.alpha[None] = self.cg_rz[None] / pq
                 else:
                     self.cg_done[None] = 1
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             if self.cg_done[None] == 0:
                 i = self.rows.index[slot]
@@ -1148,7 +1157,7 @@ class CoupledStokes:
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32, S: ti.template()):
         """z = (x, k), kept as Z_j; w = A z."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             x = self.cg_x[slot]
@@ -1180,7 +1189,7 @@ class CoupledStokes:
         right-hand side (v* = v_n + dt g, plus dt a above the drive's plane, plus the walls'
         constant terms; the continuity rows with k_n = kappa's)."""
         self.dt[None] = dt
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for i in range(self.state.n):
             self.shepard[i] = 0.0
             self.ghost[i] = ti.Vector.zero(ti.f64, 3)
@@ -1195,7 +1204,7 @@ class CoupledStokes:
                 if ph != FLUID and ph != INLET and (ph == SOLID or self.grid.wall_needed[b] == 1):
                     self.wall_row[self.n_walls[None]] = b
                     self.n_walls[None] += 1
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for wslot in range(self.n_walls[None]):
             b = self.wall_row[wslot]
             s = 0.0
@@ -1221,12 +1230,12 @@ class CoupledStokes:
             self.affine[None] = 1
             self._energy(n, S)
             self.affine[None] = 0
-            ti.loop_config(serialize=S)
+            ti.loop_config(serialize=S > 0)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.surf_rhs[i] = self.eacc[i]
         g = ti.Vector([gx, gy, gz])
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 13)
@@ -1262,7 +1271,7 @@ class CoupledStokes:
                 s += ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
             self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
         # the Schur approximation needs every melt row's B^-1: a loop of its own
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 4)
@@ -1277,7 +1286,7 @@ class CoupledStokes:
     def _pressure_error(self, n, S: ti.template()):
         """z's k = -sigma w_k: the pressure error the continuity residual leaves, as the
         preconditioner reads it (see "Tolerance")."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, -self.sigma[i] * self.w[slot][3]])
@@ -1294,7 +1303,7 @@ class CoupledStokes:
         """tw = T w = (B^-1 (w_u - dt G(-sigma w_k)), c w_k): the velocity error w stands for
         and its density error on the same scale (see "Norm"); returns |T w|^2."""
         self._pressure_error(n, S)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             e = self.Binv[i] @ self._velocity_error(i, slot)
@@ -1310,17 +1319,17 @@ class CoupledStokes:
         dx^2 times the wall speed, so an unscaled relative residual of 1e-6 let velocities be
         wrong by their own size. dk is the pressure error the continuity residual leaves, as
         the preconditioner reads it; dt G(dk) the velocity it would move."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = self.X[i]
         self._apply(n, self.w, S)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.w[slot] = self.rhs[i] - self.w[slot]
         self._pressure_error(n, S)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             self.werr[i] = self._velocity_error(i, slot)
@@ -1329,7 +1338,7 @@ class CoupledStokes:
     @ti.func
     def _norms(self, n, S: ti.template()):
         nb = (n + self.block - 1) // self.block
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for b in range(nb):
             su = ti.cast(0.0, ti.f64)
             sb = ti.cast(0.0, ti.f64)
@@ -1359,7 +1368,7 @@ class CoupledStokes:
     @ti.kernel
     def _arnoldi_apply(self, n: ti.i32, j: ti.i32, S: ti.template()):
         """w = A M^-1 v_j."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             self.w[slot] = self.basis[j, slot]
         self._precondition(n, self.w, S)
@@ -1370,7 +1379,7 @@ class CoupledStokes:
         """One pass of classical Gram-Schmidt in one launch: out_l = v_l . w for l = 0..j
         (block by block, then the blocks in order), w -= sum_l out_l v_l; returns |w|^2."""
         nb = (n + self.block - 1) // self.block
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for l, b in ti.ndrange(j + 1, nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -1392,7 +1401,7 @@ class CoupledStokes:
     @ti.func
     def _orthogonalise(self, n, j, S: ti.template()):
         """w -= sum_l coef_l v_l."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             acc = self.w[slot]
             for l in range(j + 1):
@@ -1407,7 +1416,7 @@ class CoupledStokes:
     @ti.kernel
     def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64, S: ti.template()):
         """v_j = w / norm."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             self.basis[j, slot] = self.w[slot] / norm
             if ti.static(self.exact):
@@ -1416,7 +1425,7 @@ class CoupledStokes:
     @ti.func
     def _combine(self, n, k, vectors: ti.template(), S: ti.template()):
         """w = sum_l coef_l vectors_l."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             acc = ti.Vector.zero(ti.f64, 4)
             for l in range(k):
@@ -1432,7 +1441,7 @@ class CoupledStokes:
         else:
             self._combine(n, k, self.basis, S)
             self._precondition(n, self.w, S)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.X[i] += self.w[slot] if ti.static(flexible) else self.z[i]
@@ -1443,7 +1452,7 @@ class CoupledStokes:
         """X0: the melt's velocity extrapolated from its last two steps, v_n + ratio (v_n -
         v_n-1) (ratio = dt / dt_n-1; 0: v_n), and, where given, last step's k; then v_n
         becomes every particle's previous velocity."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             v = ti.cast(self.state.v[i], ti.f64)
@@ -1471,7 +1480,7 @@ class CoupledStokes:
 
     @ti.kernel
     def _finish(self, n: ti.i32, kappa: ti.template(), S: ti.template()):
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             x = self.X[i]
@@ -1485,15 +1494,24 @@ class CoupledStokes:
         buf[: len(values)] = values
         self.coef.from_numpy(buf)
 
-    def serial(self, n: int) -> bool:
-        """Whether a solve over n rows runs its loops on the calling thread (a template
-        argument of every kernel here: each choice is compiled once). Every loop writes its
-        own rows and every sum goes block by block in a fixed order, so the two choices
-        differ only in how the compiler arranged each loop's arithmetic: identical on the
-        film (test), the same iteration counts on the bundled bead, not on benchy's window
-        (32.4 against 32.9 GMRES iterations a step over 691 steps, both converged); a GPU
-        always runs them in parallel."""
-        return self.on_cpu and n < self.serial_rows
+    def serial(self, n: int) -> int:
+        """How a solve over n rows runs its loops, a template argument of every kernel here
+        (each choice is compiled once): 2, every loop on the calling thread; 1, the loops over
+        neighbours in parallel and the rest (streams over a row's own vectors) on the calling
+        thread; 0, every loop in parallel (a GPU). A parallel loop costs a hand-off to the
+        thread pool, 0.05-0.07 ms on 2 cores, the time a stream over 50,000 rows takes on
+        one thread, while a loop over the neighbours of a few thousand rows takes tenths of
+        a millisecond (the solve gains from two threads from about 4,000 rows: see the options).
+        Every loop writes its own rows and every sum goes block by block in a fixed order, so
+        the choices differ only in how the compiler arranged each loop's arithmetic:
+        identical on the film (test), the same iteration counts on the bundled bead, not on
+        benchy's window (32.4 against 32.9 GMRES iterations a step over 691 steps, both
+        converged)."""
+        if not self.on_cpu:
+            return 0
+        if n < self.pair_rows:
+            return 2
+        return 1 if n < self.serial_rows else 0
 
     # ------------------------------------------------------------------ public
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
@@ -1622,7 +1640,7 @@ class CoupledStokes:
     def _w_sum(self, n, continuity: ti.template(), S: ti.template()):
         """sum of |w|^2, or of |w_k| (the continuity rows): block by block, then in order."""
         nb = (n + self.block - 1) // self.block
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for b in range(nb):
             s = ti.cast(0.0, ti.f64)
             for slot in range(b * self.block, ti.min((b + 1) * self.block, n)):
@@ -1647,7 +1665,7 @@ class CoupledStokes:
     @ti.kernel
     def _free_begin(self, n: ti.i32, S: ti.template()):
         """No melt row anchored yet, each its own label."""
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             self.anchored[i] = 0
@@ -1659,7 +1677,7 @@ class CoupledStokes:
         within H is anchored; returns how many rows this pass anchored (the set the passes
         converge to does not depend on the order)."""
         self.changed[None] = 0
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             if self.anchored[i] == 0:
@@ -1679,7 +1697,7 @@ class CoupledStokes:
         """Each free row takes the smallest label among its melt neighbours, then its
         label's label; returns how many changed (each fragment ends on its smallest index)."""
         self.changed[None] = 0
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             if self.anchored[i] == 0:
@@ -1751,7 +1769,7 @@ class CoupledStokes:
                     res = ti.Vector([f[0] - x[0], f[1] - x[1], f[2] - x[2]])
                     self.cl_a[r] += res
                     self.cl_b[r] += (ti.cast(self.state.x[i], ti.f64) - self.cl_c[r]).cross(res)
-        ti.loop_config(serialize=S)
+        ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
             if self.anchored[i] == 0:
@@ -1786,11 +1804,11 @@ class CoupledStokes:
         if ti.static(self.traction):
             # the strain-energy form: -dPhi/dv_b = -rho0 V (2 or 1) q_b with the whole
             # strain (walls' velocities in it) of the solution
-            ti.loop_config(serialize=S)
+            ti.loop_config(serialize=S > 0)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.z[i] = self.X[i]
-            ti.loop_config(serialize=S)
+            ti.loop_config(serialize=S > 1)
             for wslot in range(self.n_walls[None]):
                 b = self.wall_row[wslot]
                 acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)

@@ -331,10 +331,11 @@ class Simulation:
             return None
         rate = MEASURED_RATE_2CORE[key]
         if key.startswith("dfsph-coupled"):
-            # not scaled with the threads: the 2-core rate is mostly one thread's (the solve's
-            # loops stay on the calling thread below stokes' serial_rows, 8,192 melt rows on 2
-            # cores), and how its loops scale on more cores has not been measured; an estimate
-            # that assumed they did could promise a many-core user a fraction of the time
+            # not scaled with the threads: the 2-core rate is partly one thread's (the solve's
+            # loops stay on the calling thread below stokes' serial_pair_rows, 4,096 melt rows,
+            # and its streams below serial_rows), and how its loops scale on more cores has
+            # not been measured; an estimate that assumed they did could promise a many-core
+            # user a fraction of the time
             if key == "dfsph-coupled":
                 rate *= min(run.spacing_m / COUPLED_RATE_SPACING_M, 1.0) ** COUPLED_RATE_EXPONENT
             return STARTUP_S + melt_steps / rate
