@@ -74,6 +74,35 @@ def test_no_import_cycles_counting_imports_inside_functions():
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
+#: Python numbers that change during a run, per object: the live particles and melt rows
+LIVE_COUNTS = {"n", "previous_dt", "vmax", "rebuilds", "stale", "released_count",
+               "slices_spawned", "speed", "steps", "time_s", "inner_energy"}
+
+
+def test_no_kernel_reads_a_count_that_changes_during_a_run():
+    """Taichi compiles a Python number a kernel reads (self.state.n, say) into the kernel as a
+    constant of its first compilation: later launches read that value, not the live one. The
+    coupled solve's setup read state.n so, and listed only the walls sorted below the first
+    solve's particle count in every later solve (the die swell's surface iteration settled
+    on that; 2026-12-06). Such values go to a kernel as arguments."""
+    found = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.FunctionDef) and any(
+                    isinstance(d, ast.Attribute) and d.attr in ("kernel", "func")
+                    for d in node.decorator_list)):
+                continue
+            for sub in ast.walk(node):
+                if isinstance(sub, ast.Attribute) and sub.attr in LIVE_COUNTS:
+                    base = sub.value
+                    while isinstance(base, ast.Attribute):
+                        base = base.value
+                    if isinstance(base, ast.Name) and base.id == "self":
+                        found.append(f"{path.relative_to(PACKAGE)}:{sub.lineno} {node.name}: "
+                                     f"{ast.unparse(sub)}")
+    assert not found, found
+
+
 def test_only_the_command_line_parses_arguments_or_prints():
     offenders = []
     for module, path in _modules().items():

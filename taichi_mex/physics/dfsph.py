@@ -281,19 +281,20 @@ class DFSPH:
                 self.state.v[i] -= dt * self.Gp[i]
 
     @ti.kernel
-    def pressure_predictor(self, n: ti.i32, dt: float):
+    def pressure_predictor(self, n: ti.i32, n_rows: ti.i32, dt: float):
         """v -= dt G(kappa): last step's pressure, applied with gravity before the viscous solve
         (incremental pressure projection, van Kan 1986). Operator splitting otherwise lets
         gravity set the melt falling at g dt every step, which the implicit viscosity stops only
         after the step has moved it: a bead of 1000 Pa s then flattens at ~1 mm/s instead of
         creeping at rho g h^2 / eta ~ 1e-5 mm/s. A free-surface particle carries no pressure
-        (p = 0 there)."""
+        (p = 0 there). n_rows: the melt rows, an argument (a Python number read in a kernel is
+        a constant of its compilation: rows.n read here kicked the first solve's rows only)."""
         for i in range(n):
             k = self.kappa[i] * (1.0 - self.pressure_memory_loss)
             if self.state.phase[i] != FLUID or self.surface[i] == 1:
                 k = 0.0
             self.kappa[i] = k
-        self._kick(self.rows.n, dt, self.kappa)
+        self._kick(n_rows, dt, self.kappa)
     # ------------------------------------------------------------------ CG
     @ti.kernel
     def _start(self, n: ti.i32, dt: float, density: ti.template(), tol: ti.f64, tol_max: ti.f64,

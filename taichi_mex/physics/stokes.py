@@ -1182,22 +1182,25 @@ class CoupledStokes:
 
     # ------------------------------------------------------------------ kernels
     @ti.kernel
-    def _setup(self, n: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64,
+    def _setup(self, n: ti.i32, n_all: ti.i32, dt: ti.f64, gx: ti.f64, gy: ti.f64, gz: ti.f64,
                ax: ti.f64, ay: ti.f64, az: ti.f64, a_above: ti.f64,
                kappa: ti.template(), S: ti.template()):
         """Walls near the melt and their Shepard sums; per-pair coefficients; preconditioner;
         right-hand side (v* = v_n + dt g, plus dt a above the drive's plane, plus the walls'
-        constant terms; the continuity rows with k_n = kappa's)."""
+        constant terms; the continuity rows with k_n = kappa's). n_all: the live particles,
+        an argument: a Python number read inside a kernel is a constant of its compilation
+        (state.n read here was the count at the first solve, so walls sorted past it were left
+        out of every later solve)."""
         self.dt[None] = dt
         ti.loop_config(serialize=S > 0)
-        for i in range(self.state.n):
+        for i in range(n_all):
             self.shepard[i] = 0.0
             self.ghost[i] = ti.Vector.zero(ti.f64, 3)
             self.z[i] = ti.Vector.zero(ti.f64, 4)
         ti.loop_config(serialize=True)  # in storage order: every launch sums in the same order
         for _ in range(1):
             self.n_walls[None] = 0
-            for b in range(self.state.n):
+            for b in range(n_all):
                 ph = self.state.phase[b]
                 # the bore's melt column is melt at a prescribed velocity, not a wall: it
                 # takes no ghost (u_b = v_b)
@@ -1529,7 +1532,7 @@ class CoupledStokes:
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
         inner = 0
         S = self.serial(n)
-        self._setup(n, float(dt), *map(float, gravity_m_s2), *self.drive, kappa, S)
+        self._setup(n, self.state.n, float(dt), *map(float, gravity_m_s2), *self.drive, kappa, S)
         ratio = 0.0
         if self.extrapolated and extrapolate and self.previous_dt > 0.0:
             ratio = float(dt) / self.previous_dt

@@ -271,7 +271,7 @@ class DFSPHSolver:
                     iv, _ = d.divergence_solve(dt)
                 converged["divergence"] = d.cg.converged()
                 self.totals["divergence_iterations"] += iv
-            d.pressure_predictor(n, dt)
+            d.pressure_predictor(n, d.rows.n, dt)
             self._gravity(n, dt)
             with h.phase("viscosity solve"):
                 ik, res = self.visc.solve(dt)
