@@ -659,7 +659,6 @@ CASES = {
              ("traction", 0.025, ["--surface-traction"]),
              ("the pair sum (prints)", 0.05, []),
              ("the pair sum (prints)", 0.0333, []),
-             ("the pair sum, relaxed 0.5", 0.05, ["--relaxation", 0.5]),
              ("Weiler's sum alone", 0.05, ["--viscous-isotropic-share", 0]),
              ("Morris", 0.05, ["--viscous-isotropic-share", 1]),
              ("even blend", 0.05, ["--viscous-isotropic-share", 0.5]))],
@@ -671,9 +670,11 @@ CASES = {
           if r.get("swell_error") is not None else ""),
          ("streamline swell by iteration", lambda r: ", ".join(
              f"{x:.3f}" for x in r.get("swell_history") or [])),
-         ("surface a streamline (residual)", lambda r: (
-             f"{'yes' if r['surface_converged'] else 'no'} ({r['surface_residual']:+.3f})")
-          if r.get("surface_residual") is not None else ""),
+         ("surface: geometries in its cycle (the swell's spread over it)", lambda r: (
+             f"{r['surface_cycle']} ({r['swell_spread']:.3f})" if r["surface_converged"]
+             else "none within the solves") if r.get("surface_cycle") is not None else ""),
+         ("jet particles by geometry", lambda r: ", ".join(
+             f"{k:,}" for k in r.get("jet_particles_each") or [])),
          ("GMRES per solve", lambda r: ", ".join(str(k) for k in r.get("stokes_iterations_each") or [])),
          ("converged", lambda r: str(r.get("stokes_converged", "")))]),
     "mesostructure": Case(

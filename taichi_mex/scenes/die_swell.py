@@ -17,13 +17,28 @@ is the pressure, and the problem is the pressure-driven die's.
 The steady free surface is found as Nickell, Tanner & Caswell found theirs: solve the Stokes
 flow in a trial geometry (one coupled solve, nothing moved), move the jet's surface to the
 streamline that leaves the die's lip, R(z) = R + integral of u_r / u_z along the surface,
-rebuild the jet on that profile and repeat until the swell stops changing. (Stepping the
-melt out of the die in time instead stalled the coupled solve within two radii of travel at
-whatever drove it, a piston's corner or a draining column top, before the jet settled.)
-The swell is the converged streamline's far radius over R, with two checks: the jet's
-cross-section in particles over the die's (the lattice's own reading of the geometry, in
-ring steps), and sqrt(U_die / u_jet) from the mean axial speeds (continuity; equal to the swell
-when the surface is a streamline and nothing crosses it).
+rebuild the jet on that profile and repeat. (Stepping the melt out of the die in time instead
+stalled the coupled solve within two radii of travel at whatever drove it, a piston's corner
+or a draining column top, before the jet settled.)
+
+The jet is rebuilt from the die's lattice, the points inside R(z), so it can take only the
+shapes the lattice's rings allow: at 4 particles per radius the squared radii of the
+cell-centred lattice's points lie 2 dx^2 apart, so near a swell of 1.14 the surface moves in
+steps of 0.22 dx, 5 % of R. The map from a trial geometry to its streamline's geometry is
+then a map between finitely many particle sets, and the iteration ends where it must: when
+the set it would build next is one it has solved already. A set that rebuilds itself is a
+fixed point; otherwise the sets since its first solve are a cycle, the surface lies between
+them (measured at 4 per radius: two sets 24 particles apart in turn, whose streamlines read
+1.143 and 1.154), and the swell is the mean of the cycle's readings with their spread as its
+resolution. On finer lattices the sets along the whole jet rarely recur exactly; where none
+has within the solves allowed, the swell is the mean over every rebuilt geometry and the
+spread that of their readings, and the surface is reported unsettled. No tolerance stands
+in for that: a test on the swell's change finer than a ring step cannot be met, and one
+coarser would stop on whichever set came first.
+The swell is the streamline's far radius over R, with two checks: the jet's cross-section in
+particles over the die's (the lattice's own reading of the geometry, in ring steps), and
+sqrt(U_die / u_jet) from the mean axial speeds (continuity; equal to the swell when the
+surface is a streamline and nothing crosses it).
 """
 
 import math
@@ -46,15 +61,12 @@ class DieSwellScene:
     name = "die-swell"
 
     def __init__(self, radius_mm: float = 0.2, die_radii: float = 8.0, jet_radii: float = 10.0,
-                 iterations: int = 6, tolerance: float = 0.002, relaxation: float = 1.0):
-        self.options = DieSwellOptions(radius_mm, die_radii, jet_radii, iterations, tolerance,
-                                       relaxation)
-        self.relaxation = float(relaxation)
+                 iterations: int = 8):
+        self.options = DieSwellOptions(radius_mm, die_radii, jet_radii, iterations)
         self.R = radius_mm * 1e-3
         self.L_die = die_radii * self.R
         self.L_jet = jet_radii * self.R
         self.iterations = int(iterations)
-        self.tolerance = float(tolerance)
         #: the jet's radius against depth below the exit (m -> m); None: straight, R
         self.jet_profile = None
         self.U = 0.01  # m/s: the die's mean speed; a creeping flow's shape does not depend on it
@@ -69,9 +81,8 @@ class DieSwellScene:
         # enough for a swell of 2
         wide = outer + math.ceil((2.0 * self.R - outer) / dx) * dx if 2.0 * self.R > outer else outer
         layers_down = math.ceil(self.L_jet / dx - 1e-9)
-        jet = lattice_block([-wide, -wide, -layers_down * dx], [wide, wide, 0.0], dx)
-        rj = self.jet_profile(-jet[:, 2]) if self.jet_profile is not None else self.R
-        jet = jet[np.hypot(jet[:, 0], jet[:, 1]) < rj]
+        self.lattice = lattice_block([-wide, -wide, -layers_down * dx], [wide, wide, 0.0], dx)
+        jet = self.lattice[self._inside(self.jet_profile)]
         # capacity for the jet's later geometries (analyse rebuilds it in place): a swell of 2
         room = int(3 * np.sum(np.hypot(jet[:, 0], jet[:, 1]) < self.R))
         self.dx = dx
@@ -91,6 +102,13 @@ class DieSwellScene:
             drive=((0.0, 0.0, -8.0 * nu * self.U / radius**2), 0.0),
             info={"radius_m": self.R, "die_length_m": self.L_die, "jet_length_m": self.L_jet},
         )
+
+    def _inside(self, profile) -> np.ndarray:
+        """Which of the jet's lattice points lie inside a profile (None: straight, R): the
+        geometry a profile builds, and what tells two geometries apart."""
+        x = self.lattice
+        rj = profile(-x[:, 2]) if profile is not None else self.R
+        return np.hypot(x[:, 0], x[:, 1]) < rj
 
     # ------------------------------------------------------------ measurement
     def _measure(self, sim) -> dict:
@@ -132,38 +150,51 @@ class DieSwellScene:
                 "converged": bool(res.converged)}
 
     def analyse(self, sim) -> dict:
-        """Nickell, Tanner & Caswell's iteration: solve, move the surface (part of the way,
-        by the relaxation) to the lip's streamline, rebuild, until the surface is a streamline
-        of its own flow: its far radius and the streamline's within the tolerance."""
-        history = []
-        geometry = [1.0]  # the far swell of each geometry solved (the start is straight)
-        current = lambda d: np.full_like(d, self.R)  # noqa: E731
+        """Nickell, Tanner & Caswell's iteration on the lattice: solve, move the surface to the
+        lip's streamline, rebuild, until the geometry to build is one already solved (a fixed
+        point, or a cycle the surface lies within: the module's docstring)."""
+        history, solved = [], []  # each geometry's measurement, and its lattice points
+        profile = None  # straight, R
+        cycle = None  # the index of the first geometry of the cycle found
         try:
             for k in range(self.iterations):
+                inside = self._inside(profile)
+                seen = next((i for i, s in enumerate(solved) if np.array_equal(s, inside)), None)
+                if seen is not None:
+                    cycle = seen
+                    break
                 if k:
                     # the particles of the new jet in place of the old (room for a swell of 2)
-                    self.jet_profile = current
+                    self.jet_profile = profile
                     sim.place(self.plan(sim.run_opts, sim.material).blocks, replace=True)
+                solved.append(inside)
                 m = self._measure(sim)
                 history.append(m)
-                if abs(m["streamline"] - geometry[-1]) < self.tolerance or k == self.iterations - 1:
-                    break
-                depth, rise, prev, w = m["depth"], m["rise"], current, self.relaxation
-                current = (lambda d, depth=depth, rise=rise, prev=prev, w=w:
-                           (1.0 - w) * prev(d) + w * (self.R + np.interp(d, depth, rise)))
-                geometry.append(float(np.mean(current(np.linspace(4.0, 6.0, 21) * self.R))) / self.R)
+                profile = (lambda d, depth=m["depth"], rise=m["rise"]:
+                           self.R + np.interp(d, depth, rise))
+            else:
+                # the last solve's streamline may rebuild a geometry solved already
+                inside = self._inside(profile)
+                cycle = next((i for i, s in enumerate(solved) if np.array_equal(s, inside)), None)
         finally:
             self.jet_profile = None
         last = history[-1]
-        residual = last["streamline"] - geometry[len(history) - 1]
-        return {"swell": last["streamline"], "swell_lattice": last["lattice"],
-                "swell_kinematic": last["kinematic"], "swell_reference": NEWTONIAN_SWELL,
-                "swell_error": last["streamline"] / NEWTONIAN_SWELL - 1.0,
+        # the swell's readings: over the cycle where the iteration closed one, else over every
+        # rebuilt geometry (the straight start is no trial of the surface), their spread the
+        # iteration's own scatter
+        over = history[cycle:] if cycle is not None else (history[1:] or history)
+        mean = lambda key: float(np.mean([h[key] for h in over]))  # noqa: E731
+        swell = mean("streamline")
+        return {"swell": swell, "swell_lattice": mean("lattice"),
+                "swell_kinematic": mean("kinematic"), "swell_reference": NEWTONIAN_SWELL,
+                "swell_error": swell / NEWTONIAN_SWELL - 1.0,
+                "swell_spread": float(np.ptp([h["streamline"] for h in over])),
                 "swell_history": [h["streamline"] for h in history],
                 "swell_kinematic_history": [h["kinematic"] for h in history],
                 "swell_lattice_history": [h["lattice"] for h in history],
-                "surface_residual": residual,
-                "surface_converged": bool(abs(residual) < self.tolerance),
+                "jet_particles_each": [int(s.sum()) for s in solved],
+                "surface_converged": cycle is not None,
+                "surface_cycle": len(history) - cycle if cycle is not None else 0,
                 "surface_depth_m": last["depth"].tolist(),
                 "surface_radius_ratio": (1.0 + last["rise"] / self.R).tolist(),
                 "die_mean_speed_m_s": last["u_die"], "jet_speed_m_s": last["u_jet"],
@@ -180,14 +211,9 @@ class DieSwellOptions:
                            check=Range(4.0, 100.0))
     jet_radii: float = opt(10.0, help="length of the jet below the exit, in radii (-; the "
                            "swell is read 4-6 radii down)", check=Range(8.0, 100.0))
-    iterations: int = opt(6, help="most solves of the free-surface iteration (-)",
+    iterations: int = opt(8, help="most solves of the free-surface iteration (-; it ends "
+                          "sooner where the geometry to build next was solved already)",
                           check=Range(1, 100, integer=True), flag="--surface-iterations")
-    tolerance: float = opt(0.002, help="the iteration stops when the streamline's far swell and "
-                           "the surface's it was computed in differ by less than this (-)",
-                           check=Positive(), flag="--swell-tolerance")
-    relaxation: float = opt(1.0, help="share of the way to the streamline the surface moves "
-                            "each iteration (-; 1: all of it)", check=Range(0.0, 1.0, lo_open=True),
-                            flag="--relaxation")
 
 
 def _defaults(_options) -> dict:
