@@ -672,7 +672,8 @@ CASES = {
              f"{x:.3f}" for x in r.get("swell_history") or [])),
          ("surface: geometries in its cycle (the swell's spread over it)", lambda r: (
              f"{r['surface_cycle']} ({r['swell_spread']:.3f})" if r["surface_converged"]
-             else "none within the solves") if r.get("surface_cycle") is not None else ""),
+             else f"none in {r['geometry_iterations']} solves (spread "
+                  f"{r['swell_spread']:.3f})") if r.get("surface_cycle") is not None else ""),
          ("jet particles by geometry", lambda r: ", ".join(
              f"{k:,}" for k in r.get("jet_particles_each") or [])),
          ("GMRES per solve", lambda r: ", ".join(str(k) for k in r.get("stokes_iterations_each") or [])),
