@@ -44,6 +44,23 @@ def test_a_print_takes_the_coupled_solve_and_either_surface_condition():
     assert RunSpec.create("collapse").run.dfsph.creeping_solve == "coupled"
 
 
+def test_the_nozzles_face_is_a_flag():
+    """--nozzle-tip-mm sets the flat face's outer diameter ('none': no face); the width of a
+    strand follows it (validation/strands, "The nozzle's flat face")."""
+    from taichi_mex.app.cli import print_parser, spec_from_args
+
+    def face(*argv):
+        parser, dests = print_parser()
+        return spec_from_args(parser.parse_args(list(argv)), dests, "print").options \
+            .nozzle_tip_outer_diameter_mm
+
+    assert face() == 1.0
+    assert face("--nozzle-tip-mm", "0.6") == 0.6
+    assert face("--nozzle-tip-mm", "none") is None
+    with pytest.raises(UserInputError, match="neither a number"):
+        face("--nozzle-tip-mm", "wide")
+
+
 def test_pygcodedecode_examples_by_name(tmp_path):
     """pygcodedecode:NAME is one of pyGCodeDecode's example prints (the window benchmarks run
     its benchy); an unknown name lists the ones there are."""

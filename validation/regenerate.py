@@ -533,6 +533,21 @@ CASES = {
                                                                    ("real viscosity", "off"))],
         COUPLED_STRAND + [("viscosity x", num("viscosity_scale", "{:.3g}"))],
         folder="strands", tag="viscosity"),
+    "strands_face": Case(
+        "coupled strands under nozzle faces of 0.6, 1.0 (the default) and 1.4 mm outer diameter "
+        "and none (the bore's wall alone): the melt spreads under the face before it leaves, so "
+        "does the strand's section follow the face, which the slicer's rounded rectangle knows "
+        "nothing of?",
+        [(f"gap {g:.2f}, width {w:.2f}, {res}, face {face}",
+          strand(g, w, "--resolution", res, "--nozzle-tip-mm", face),
+          {"gap_mm": g, "width_mm": w, "face_mm": face})
+         for g, w, res, faces in ((0.2, 0.45, "standard", ("none", 0.6, 1.0, 1.4)),
+                                  (0.2, 0.6, "standard", (0.6, 1.0, 1.4)),
+                                  (0.2, 0.45, "fine", (0.6,)))
+         for face in faces],
+        [(f"0.1 mm, face {face}", strand(0.2, 0.45, "--resolution", 0.1, "--nozzle-tip-mm", face),
+          {"gap_mm": 0.2, "width_mm": 0.45, "face_mm": face}) for face in (0.6, 1.0)],
+        COUPLED_STRAND, folder="strands", tag="face"),
     "trade": Case(
         "the speed-accuracy ladder on the single bead (study bead): wall time against the "
         "section's largest deviation from the creeping-flow one (W, H, area)",

@@ -13,7 +13,8 @@ import numpy as np
 
 from taichi_mex import bundled
 from taichi_mex.errors import UserInputError
-from taichi_mex.options import Either, NONE, NonNegative, OneOf, Positive, Range, Text, opt
+from taichi_mex.options import (Either, NONE, NonNegative, OneOf, Positive, Range, Text, opt,
+                                parse_optional_float)
 from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.sim.boundaries import column_slices, disc_lattice, plate_lattice
 from taichi_mex.toolpath.plan import make_plan
@@ -62,8 +63,10 @@ class PrintOptions:
                              "'one_diameter' (the seed paper's)", check=OneOf("gcode", "one_diameter"),
                              names=("nozzle_height",))
     nozzle_tip_outer_diameter_mm: float | None = opt(
-        1.0, help="flat nozzle tip around the bore (mm), None for none", check=Either(NONE, Positive()),
-        names=("nozzle_tip_outer_diameter_mm",))
+        1.0, help="outer diameter of the nozzle's flat tip face around the bore (mm; 'none': no "
+        "face, the bore's wall alone). The face presses the melt it lays down: the strand's "
+        "width follows it (validation/strands)", check=Either(NONE, Positive()),
+        flag="--nozzle-tip-mm", parse=parse_optional_float, names=("nozzle_tip_outer_diameter_mm",))
     nozzle_flank_angle_deg: float | None = opt(
         45.0, help="the nozzle's conical flank above its flat tip, its angle from the tip's "
         "plane (deg; None: the flat tip alone, as thick as the bore column). Melt the tip "
