@@ -159,9 +159,8 @@ class DieSwellScene:
         try:
             for k in range(self.iterations):
                 inside = self._inside(profile)
-                seen = next((i for i, s in enumerate(solved) if np.array_equal(s, inside)), None)
-                if seen is not None:
-                    cycle = seen
+                cycle = _index_of(solved, inside)
+                if cycle is not None:
                     break
                 if k:
                     # the particles of the new jet in place of the old (room for a swell of 2)
@@ -174,8 +173,7 @@ class DieSwellScene:
                            self.R + np.interp(d, depth, rise))
             else:
                 # the last solve's streamline may rebuild a geometry solved already
-                inside = self._inside(profile)
-                cycle = next((i for i, s in enumerate(solved) if np.array_equal(s, inside)), None)
+                cycle = _index_of(solved, self._inside(profile))
         finally:
             self.jet_profile = None
         last = history[-1]
@@ -202,6 +200,11 @@ class DieSwellScene:
                 "stokes_iterations_each": [h["iterations"] for h in history],
                 "stokes_converged": all(h["converged"] for h in history),
                 "radius_m": self.R}
+
+
+def _index_of(solved: list, inside: np.ndarray) -> int | None:
+    """Where a geometry (its lattice points) is among those solved, or None."""
+    return next((i for i, s in enumerate(solved) if np.array_equal(s, inside)), None)
 
 
 @dataclass
