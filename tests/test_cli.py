@@ -161,3 +161,14 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
     assert run_warnings({**carried, "melt_over_face_fraction_max": 0.009}, run) == []
     assert "23 % of the melt at t = 1.664 s" in _health(carried)
     assert "none" in _health({**carried, "melt_over_face_fraction_max": 0.0})
+
+
+def test_the_reports_law_names_the_nozzles_face():
+    """The report compares sections with the slicer's rounded rectangle and says that the law
+    has no nozzle in it and which face the run's melt spread under (the width follows it)."""
+    from taichi_mex.post.report import law_note
+
+    note = law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": 0.6}})
+    assert "g = 0.2 mm" in note and "0.6 mm across" in note
+    assert "a nozzle's flat face" in law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": None}})
+    assert "a nozzle's flat face" in law_note(0.2, None)
