@@ -436,6 +436,15 @@ def test_the_isotropic_share_is_refused_where_the_pair_sum_is_not_the_viscous_te
     assert _film(1000.0).solver.stokes.w_iso == 0.0  # the film's default: the traction's form
 
 
+def test_an_inner_tolerance_below_the_inner_pass_precision_is_refused():
+    """The inner solve on Weiler's sum runs its neighbour pass in f32 (a residual fall of
+    ~1e-6 is what it resolves): a tolerance it could not honour is refused, not run."""
+    from taichi_mex.errors import UserInputError
+    with pytest.raises(UserInputError, match="stokes_inner_tolerance"):
+        RunSpec.create("print", changes={"run.dfsph.stokes_inner_tolerance": 1e-6})
+    RunSpec.create("print", changes={"run.dfsph.stokes_inner_tolerance": 1e-4})
+
+
 def test_a_compression_no_flow_relieves_settles_on_a_pressure():
     """The continuity rows carry the melt's bulk modulus, and the kernel sum's compression
     source counts only what k_n does not already hold (k_n / c^2). The film's melt held 1 %

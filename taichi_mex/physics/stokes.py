@@ -307,6 +307,23 @@ aggregates of 6^3 spacings as its coarse space (264 / 157 against 344 / 268 at 4
 need no long restart (the draft bead: 18 a step, the same at 40 and 120) and pay nothing for
 it: their melt is a few thousand of their 36,000-107,000 particles.
 
+Inner precision: the inner solve on Weiler's sum preconditions; it stops at a residual fall
+of 0.3 and flexible GMRES outside keeps whatever it returns, so its neighbour pass reads the
+direction p and c F in f32 (cF_in, with the wall's ghost factor folded in and every wall's p
+held at zero, so the pass has no branch on the phase) and sums in f64; its scalars (r . z,
+p . q) and its vectors by row stay f64. f32 resolves a residual fall of ~1e-6, far below the
+inner tolerances in use (the option refuses one under 1e-4). On the strain-energy form the direction stays f64 (its passes read
+z). Cached kernel gradient: V F(|x_ij|) is stored per list slot in the setup (VF) and the
+pressure and divergence passes read it instead of evaluating the kernel; it is the same
+expression in the same precision, so those passes give the same bits. Measured on the paper
+block (unscaled, draft) resumed at t = 1.664 s, 96 steps, alone on 2 cores (2026-12-06): 448-464
+ms a step before, 361-387 with the f32 inner pass, 288 with the cache too, at the same 17.9 /
+105.0 GMRES / inner iterations a step (the cache alone changes no digit); the inner pass 1.0-1.3
+ms -> 0.35-0.67, the pressure pass 2.0 -> 0.79 ms (Taichi's kernel profiler). The bundled
+bead at standard, one after the other: 160 s before, 124 s after, the same 823 steps at 20.5 /
+55.0 and 20.4 / 55.0 GMRES / inner iterations a step, W / H 0.501 / 0.181 and 0.504 / 0.181 mm
+(the inner solve's rounding moves the trajectory, not the shape).
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -375,7 +392,7 @@ class StokesResult:
 @ti.data_oriented
 class CoupledStokes:
     #: Krylov basis and scratch, rebuilt by every solve: not part of a checkpoint
-    checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF",
+    checkpoint_skip = ("basis", "w", "z", "X", "rhs", "ghost", "shepard", "wall_row", "cF", "cF_in", "VF",
                        "Binv", "sigma", "part", "Minv", "Ag", "T", "hg", "q", "eacc", "Binv_in",
                        "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b", "changed",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
@@ -482,6 +499,9 @@ class CoupledStokes:
         self.wall_row = ti.field(ti.i32, shape=cap)  # walls within reach of the melt
         self.n_walls = ti.field(ti.i32, shape=())
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
+        # V F(|x_ij|) by list slot, in the state's precision: the pressure and divergence
+        # passes read it instead of evaluating the kernel (the same value to the bit)
+        self.VF = ti.field(float, shape=(cap, grid.max_neighbours))
         self.Binv = ti.Matrix.field(3, 3, ti.f64, shape=cap)
         self.sigma = ti.field(ti.f64, shape=cap)
         # the inner solve's preconditioner on Weiler's sum, by row (not particle): its
@@ -533,7 +553,12 @@ class CoupledStokes:
         self.Zb = ti.Vector.field(4, ti.f64, shape=(self.m if self.flexible else 1,
                                                     rcap if self.flexible else 1))
         vec3 = lambda: ti.Vector.field(3, ti.f64, shape=inner)  # noqa: E731
-        self.cg_x, self.cg_r, self.cg_p, self.cg_q, self.cg_z = vec3(), vec3(), vec3(), vec3(), vec3()
+        self.cg_x, self.cg_r, self.cg_q, self.cg_z = vec3(), vec3(), vec3(), vec3()
+        # what the inner solve's neighbour pass reads per pair, in f32 (see "Inner precision"):
+        # the direction p by particle (walls' held at zero) and c F with the wall's ghost
+        # factor folded in
+        self.cg_p = ti.Vector.field(3, ti.f32, shape=inner)
+        self.cF_in = ti.field(ti.f32, shape=(inner, grid.max_neighbours if self.flexible else 1))
         self.kpart = ti.field(ti.f64, shape=inner)  # the preconditioned vector's k
         self.cg_part = ti.field(ti.f64, shape=(2, self.n_blocks))
         # free fragments (see "Free fragments"): whether a melt row's fragment touches a wall,
@@ -564,8 +589,10 @@ class CoupledStokes:
         terms of the right-hand side: momentum (acc[9:12]) and continuity (acc[12])."""
         r2 = xij.norm_sqr()
         cF = 0.0
+        VF = ti.cast(0.0, self.VF.dtype)
         if r2 < self.K.H * self.K.H and r2 > 0.0:
-            F = self.K.F(ti.sqrt(r2))
+            F = self.K.F(xij.norm())
+            VF = self.V * F
             cF = self.viscous._coef(i, j, r2) * F
             if self.state.phase[j] != FLUID:
                 vb = ti.cast(self.state.v[j], ti.f64)
@@ -575,6 +602,12 @@ class CoupledStokes:
                     acc[9 + d] += w[d]
                 acc[12] += vb.dot(self._corrected(i, self.V * F * xij))
         self.cF[i, slot] = cF
+        self.VF[i, slot] = VF
+        if ti.static(self.flexible):
+            f = 1.0
+            if self.state.phase[j] != FLUID and self.shepard[j] > 0.0:
+                f = 2.0  # Adami's ghost: p_b = -p_i, so the pair sees 2 p_i
+            self.cF_in[i, slot] = ti.cast(f * cF, ti.f32)
         for a in ti.static(range(3)):
             if ti.static(self.isotropic):
                 acc[4 * a] += (self.w_iso * self.morris_ratio) * cF * r2
@@ -836,8 +869,7 @@ class CoupledStokes:
         cF = self.cF[i, slot]
         zi = self.z[i]
         ui = ti.Vector([zi[0], zi[1], zi[2]])
-        F = self.K.F(xij.norm())
-        gV = self.V * F * xij
+        gV = self.VF[i, slot] * xij
         if self.state.phase[j] == FLUID:
             zj = self.z[j]
             uj = ti.Vector([zj[0], zj[1], zj[2]])
@@ -984,7 +1016,7 @@ class CoupledStokes:
     @ti.func
     def _pressure_task(self, i, slot, j, xij, acc: ti.template()):
         """G(k)_i of z's k."""
-        gV = self.V * self.K.F(xij.norm()) * xij
+        gV = self.VF[i, slot] * xij
         acc += self._pressure_pair(i, j, gV, self._corrected(i, gV))
 
     @ti.func
@@ -996,14 +1028,10 @@ class CoupledStokes:
 
     @ti.func
     def _inner_task(self, i, slot, j, xij, acc: ti.template()):
-        """sum_j c F ((p_i - p_j) . x) x, walls as p_j = -p_i (ghost) or 0 (prescribed melt)."""
-        cF = self.cF[i, slot]
-        pi = self.cg_p[i]
-        if self.state.phase[j] == FLUID:
-            acc += self._pair(cF, pi - self.cg_p[j], xij)
-        else:
-            f = 2.0 if self.shepard[j] > 0.0 else 1.0
-            acc += self._pair(f * cF, pi, xij)
+        """sum_j c F ((p_i - p_j) . x) x, walls as p_j = -p_i (ghost) or 0 (prescribed melt):
+        a wall's p is held at zero and its factor is in cF_in, so no branch on the phase."""
+        d = self._pair(self.cF_in[i, slot], self.cg_p[i] - self.cg_p[j], ti.cast(xij, ti.f32))
+        acc += ti.cast(d, ti.f64)
 
     @ti.kernel
     def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template(),
@@ -1025,8 +1053,8 @@ class CoupledStokes:
             self.cg_x[slot] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.cg_r[slot] = r
             self.cg_z[slot] = self._inner_block(i, slot, energy) @ r
-            self.cg_p[i] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
-        self._inner_blocks(n, 0, S)
+            self.cg_p[i] = ti.Vector.zero(ti.f32, 3)
+        self._inner_blocks(n, 0, S, energy)
         ti.loop_config(serialize=True)
         for _ in range(1):
             rz = self.total[None]
@@ -1036,6 +1064,18 @@ class CoupledStokes:
             self.cg_it[None] = 0
             self.cg_done[None] = 0 if (rz > 0.0 and max_it > 0) else 1
         return self.cg_done[None]
+
+    @ti.func
+    def _direction(self, i, energy: ti.template()):
+        """The inner solve's search direction p at row i: in z's velocity on the strain-energy
+        form (its operator reads z), in the f32 cg_p on Weiler's sum."""
+        out = ti.Vector.zero(ti.f64, 3)
+        if ti.static(energy):
+            zi = self.z[i]
+            out = ti.Vector([zi[0], zi[1], zi[2]])
+        else:
+            out = ti.cast(self.cg_p[i], ti.f64)
+        return out
 
     @ti.func
     def _inner_block(self, i, slot, energy: ti.template()):
@@ -1049,7 +1089,7 @@ class CoupledStokes:
         return out
 
     @ti.func
-    def _inner_blocks(self, n, which, S: ti.template()):
+    def _inner_blocks(self, n, which, S: ti.template(), energy: ti.template()):
         """r . cg_z (which 0) or p . q (which 1): block by block, then the blocks in order."""
         nb = (n + self.block - 1) // self.block
         ti.loop_config(serialize=S > 0)
@@ -1060,7 +1100,7 @@ class CoupledStokes:
                 if which == 0:
                     s += self.cg_r[slot].dot(self.cg_z[slot])
                 else:
-                    s += self.cg_p[i].dot(self.cg_q[slot])
+                    s += self._direction(i, energy).dot(self.cg_q[slot])
             self.cg_part[which, b] = s
         return self._in_order(self.cg_part, which, nb)
 
@@ -1089,14 +1129,14 @@ class CoupledStokes:
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
-                    self.cg_p[i] = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
+                    self.cg_p[i] = ti.cast(self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i], ti.f32)
             ti.loop_config(serialize=S > 1)
             for slot in range(n):
                 if self.cg_done[None] == 0:
                     i = self.rows.index[slot]
                     acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
                     self.grid.for_each_listed(i, self._inner_task, acc)
-                    self.cg_q[slot] = self.cg_p[i] - self.dt[None] * acc
+                    self.cg_q[slot] = ti.cast(self.cg_p[i], ti.f64) - self.dt[None] * acc
             self._inner_step(n, tol2, max_it, S, False)
         return self.cg_done[None]
 
@@ -1111,21 +1151,20 @@ class CoupledStokes:
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
-            p = self.cg_z[slot] + self.cg_beta[None] * self.cg_p[i]
-            self.cg_p[i] = p
+            p = self.cg_z[slot] + self.cg_beta[None] * self._direction(i, True)
             self.z[i] = ti.Vector([p[0], p[1], p[2], 0.0])
         self._viscous_of_z(n, S)
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
-            self.cg_q[slot] = self.cg_p[i] - self.dt[None] * self.eacc[i]
+            self.cg_q[slot] = self._direction(i, True) - self.dt[None] * self.eacc[i]
         self._inner_step(n, tol2, max_it, S, True)
         return self.cg_done[None]
 
     @ti.func
     def _inner_step(self, n, tol2, max_it, S: ti.template(), energy: ti.template()):
         """The rest of an inner iteration once q = A~ p: alpha, x, r, z, beta and the stop."""
-        self._inner_blocks(n, 1, S)
+        self._inner_blocks(n, 1, S, energy)
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.cg_done[None] == 0:
@@ -1139,11 +1178,11 @@ class CoupledStokes:
             if self.cg_done[None] == 0:
                 i = self.rows.index[slot]
                 alpha = self.alpha[None]
-                self.cg_x[slot] += alpha * self.cg_p[i]
+                self.cg_x[slot] += alpha * self._direction(i, energy)
                 r = self.cg_r[slot] - alpha * self.cg_q[slot]
                 self.cg_r[slot] = r
                 self.cg_z[slot] = self._inner_block(i, slot, energy) @ r
-        self._inner_blocks(n, 0, S)
+        self._inner_blocks(n, 0, S, energy)
         ti.loop_config(serialize=True)
         for _ in range(1):
             if self.cg_done[None] == 0:
@@ -1197,6 +1236,9 @@ class CoupledStokes:
             self.shepard[i] = 0.0
             self.ghost[i] = ti.Vector.zero(ti.f64, 3)
             self.z[i] = ti.Vector.zero(ti.f64, 4)
+            if ti.static(self.flexible):
+                if self.state.phase[i] != FLUID:
+                    self.cg_p[i] = ti.Vector.zero(ti.f32, 3)
         ti.loop_config(serialize=True)  # in storage order: every launch sums in the same order
         for _ in range(1):
             self.n_walls[None] = 0

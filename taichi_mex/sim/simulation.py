@@ -245,13 +245,15 @@ class Simulation:
         per_melt = 0  # bytes per melt row: the coupled solve's Krylov vectors
         if run.scheme == "dfsph" and run.dfsph.creeping_solve == "coupled":
             # physics/stokes.py, in f64: per melt row the Krylov basis (restart + 1 4-vectors)
-            # and the flexible GMRES's preconditioned vectors (restart); per particle a cached
-            # coefficient per list slot, about 20 vectors and matrices of scratch (680 bytes),
-            # and the extrapolated initial guess's previous velocities
+            # and the flexible GMRES's preconditioned vectors (restart); per particle and list
+            # slot the viscous coefficient (f64), the inner solve's (f32) and V F (the state's
+            # precision), about 20 vectors and matrices of scratch (680 bytes), and the
+            # extrapolated initial guess's previous velocities
             m = run.dfsph.stokes_restart
             # GMRES's inner product: T of each basis vector and of w
             weights = (m + 2) * 32 if run.dfsph.stokes_norm == "criterion" else 0
-            per_particle += 8 * max_nbr + 680
+            inner = 4 if run.dfsph.stokes_preconditioner == "block_triangular" else 0
+            per_particle += (8 + inner + fp) * max_nbr + 680
             per_melt = (2 * m + 1) * 32 + weights
             if run.dfsph.stokes_initial_guess == "extrapolated":
                 per_particle += 3 * fp
