@@ -312,9 +312,10 @@ of 0.3 and flexible GMRES outside keeps whatever it returns, so its neighbour pa
 direction p and c F in f32 (cF_in, with the wall's ghost factor folded in and every wall's p
 held at zero, so the pass has no branch on the phase) and sums in f64; its scalars (r . z,
 p . q) and its vectors by row stay f64. f32 resolves a residual fall of ~1e-6, far below the
-inner tolerances in use (the option refuses one under 1e-4). On the strain-energy form the direction stays f64 (its passes read
-z). Cached kernel gradient: V F(|x_ij|) is stored per list slot in the setup (VF) and the
-pressure and divergence passes read it instead of evaluating the kernel; it is the same
+inner tolerances in use (the option refuses one under 1e-4). On the strain-energy form the
+direction stays f64 (its passes read z). Cached kernel gradient: V F(|x_ij|) is stored per
+list slot in the setup (VF) and the Schur diagonal, pressure and divergence passes read it
+instead of evaluating the kernel; it is the same
 expression in the same precision, so those passes give the same bits. Measured on the paper
 block (unscaled, draft) resumed at t = 1.664 s, 96 steps, alone on 2 cores (2026-12-06): 448-464
 ms a step before, 361-387 with the f32 inner pass, 288 with the cache too, at the same 17.9 /
@@ -600,7 +601,7 @@ class CoupledStokes:
                 w = self._pair(cF, gb, xij)
                 for d in ti.static(range(3)):
                     acc[9 + d] += w[d]
-                acc[12] += vb.dot(self._corrected(i, self.V * F * xij))
+                acc[12] += vb.dot(self._corrected(i, VF * xij))
         self.cF[i, slot] = cF
         self.VF[i, slot] = VF
         if ti.static(self.flexible):
@@ -639,10 +640,11 @@ class CoupledStokes:
     @ti.func
     def _schur_task(self, i, slot, j, xij, acc: ti.template()):
         """acc[0:3]: G(e_i)_i = sum over all neighbours of V grad W corrected at i; acc[3]: sum
-        over melt neighbours of G(e_i)_j . B_j^-1 G(e_i)_j (G(e_i)_j = -that pair's term)."""
+        over melt neighbours of G(e_i)_j . B_j^-1 G(e_i)_j (G(e_i)_j = -that pair's term);
+        V F from the setup's cache (_setup_task fills it in the loop before)."""
         r2 = xij.norm_sqr()
         if r2 < self.K.H * self.K.H and r2 > 0.0:
-            c = ti.cast(self._corrected(i, self.V * self.K.F(ti.sqrt(r2)) * xij), ti.f64)
+            c = ti.cast(self._corrected(i, self.VF[i, slot] * xij), ti.f64)
             for d in ti.static(range(3)):
                 acc[d] += c[d]
             if self.state.phase[j] == FLUID:
