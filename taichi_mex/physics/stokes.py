@@ -325,6 +325,15 @@ bead at standard, one after the other: 160 s before, 124 s after, the same 823 s
 55.0 and 20.4 / 55.0 GMRES / inner iterations a step, W / H 0.501 / 0.181 and 0.504 / 0.181 mm
 (the inner solve's rounding moves the trajectory, not the shape).
 
+Inner right-hand side: the inner solve for basis vector v_j starts from v_j's velocity error
+e_j = v_u - dt G(-sigma v_k), the vector whose B^-1 the criterion's image T v_j already holds
+(see "Norm"). So with the criterion's norm it is read back as B (T v_j)_u, B kept by row from
+the setup (Bm), and the operator's product adds dt G(k) = v_u - e_j for the preconditioned
+vector's k instead of summing it over the pairs again: of the three pressure sums a GMRES
+iteration took, the criterion's is the one left. T v_j comes from Gram-Schmidt's updates, as
+v_j does, and B (B^-1 e) returns e to eps cond(B), ~1e-11 at nu dt / dx^2 ~ 1e5, far below the
+solve's 3e-4; the true residual at each restart decides the stop as before.
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -341,9 +350,9 @@ from taichi_mex.physics.viscosity_morris1997 import lattice_laplacian_factor as 
 log = logging.getLogger(__name__)
 
 #: passes over the melt's neighbour lists (walls' passes counted as whole ones): a GMRES
-#: iteration of the block-triangular preconditioner (the inner solve's G(k) and the
+#: iteration of the block-triangular preconditioner (the criterion's pressure sum and the
 #: operator's product: the walls' ghosts, the strain-energy form's three passes and one of
-#: its own), and an inner iteration on the strain-energy form (ghosts, three, its walls'
+#: its own; the inner solve's G(k) is read from T v, see "Inner right-hand side"), and an inner iteration on the strain-energy form (ghosts, three, its walls'
 #: adjoint sums); one on Weiler's sum is one pass
 OUTER_PASSES = 6
 ENERGY_INNER_PASSES = 4
@@ -398,7 +407,7 @@ class CoupledStokes:
                        "surf_rhs", "anchored", "comp", "cl_n", "cl_c", "cl_Jinv", "cl_a", "cl_b", "changed",
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
-                       "dots_out", "c2inv", "coef", "tw", "tb", "crho",
+                       "dots_out", "c2inv", "coef", "tw", "tb", "crho", "reuse", "Bm", "cg_g", "begin_serial",
                        # the machine's, not the run's: a resume elsewhere takes its own
                        "on_cpu", "serial_rows", "pair_rows")
 
@@ -561,6 +570,13 @@ class CoupledStokes:
         self.cg_p = ti.Vector.field(3, ti.f32, shape=inner)
         self.cF_in = ti.field(ti.f32, shape=(inner, grid.max_neighbours if self.flexible else 1))
         self.kpart = ti.field(ti.f64, shape=inner)  # the preconditioned vector's k
+        # the inner solve's right-hand side from the criterion's image T v_j (see "Inner
+        # right-hand side"): the momentum rows' diagonal blocks B by row, and dt G(k) of the
+        # preconditioned vector's k, which the operator's product adds instead of a pass
+        self.reuse = self.flexible and self.exact
+        self.Bm = ti.Matrix.field(3, 3, ti.f64, shape=self.rows_cap if self.reuse else 1)
+        self.cg_g = ti.Vector.field(3, ti.f64, shape=self.rows_cap if self.reuse else 1)
+        self.begin_serial = 0 if self.reuse else 1
         self.cg_part = ti.field(ti.f64, shape=(2, self.n_blocks))
         # free fragments (see "Free fragments"): whether a melt row's fragment touches a wall,
         # its fragment's label (the smallest row index in it), and per label the fragment's
@@ -866,8 +882,16 @@ class CoupledStokes:
 
     @ti.func
     def _apply_task(self, i, slot, j, xij, acc: ti.template()):
+        self._apply_pair(i, slot, j, xij, acc, True)
+
+    @ti.func
+    def _apply_velocity_task(self, i, slot, j, xij, acc: ti.template()):
+        self._apply_pair(i, slot, j, xij, acc, False)
+
+    @ti.func
+    def _apply_pair(self, i, slot, j, xij, acc: ti.template(), pressure: ti.template()):
         """acc[0:3]: L's linear part (Weiler's; the strain-energy form adds its own), acc[3:6]:
-        G(k), acc[6]: D(u) (linear parts)."""
+        G(k) (pressure; else left at zero), acc[6]: D(u) (linear parts)."""
         cF = self.cF[i, slot]
         zi = self.z[i]
         ui = ti.Vector([zi[0], zi[1], zi[2]])
@@ -877,11 +901,13 @@ class CoupledStokes:
             uj = ti.Vector([zj[0], zj[1], zj[2]])
             l = self._pair(cF, ui - uj, xij)
             gi = self._corrected(i, gV)
-            g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
                 if ti.static(not self.traction):
                     acc[d] += l[d]
-                acc[3 + d] += g[d]
+            if ti.static(pressure):
+                g = self._pressure_pair(i, j, gV, gi)
+                for d in ti.static(range(3)):
+                    acc[3 + d] += g[d]
             acc[6] += (ui - uj).dot(gi)
         else:
             ug = ti.Vector([0.0, 0.0, 0.0], ti.f64)
@@ -889,11 +915,13 @@ class CoupledStokes:
                 ug = self.ghost[j] / self.shepard[j]
             l = self._pair(cF, ui + ug, xij)  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
             gi = self._corrected(i, gV)
-            g = self._pressure_pair(i, j, gV, gi)
             for d in ti.static(range(3)):
                 if ti.static(not self.traction):
                     acc[d] += l[d]
-                acc[3 + d] += g[d]
+            if ti.static(pressure):
+                g = self._pressure_pair(i, j, gV, gi)
+                for d in ti.static(range(3)):
+                    acc[3 + d] += g[d]
             acc[6] += ui.dot(gi)
 
     @ti.func
@@ -910,15 +938,19 @@ class CoupledStokes:
             self._energy(n, S)
 
     @ti.func
-    def _apply(self, n, out: ti.template(), S: ti.template()):
-        """out = A z on the melt rows (z: the preconditioned vector)."""
+    def _apply(self, n, out: ti.template(), S: ti.template(), pressure: ti.template()):
+        """out = A z on the melt rows (z: the preconditioned vector); pressure False: without
+        dt G(z's k), which the caller adds."""
         self._viscous_of_z(n, S)
         dt = self.dt[None]
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 7)
-            self.grid.for_each_listed(i, self._apply_task, acc)
+            if ti.static(pressure):
+                self.grid.for_each_listed(i, self._apply_task, acc)
+            else:
+                self.grid.for_each_listed(i, self._apply_velocity_task, acc)
             zi = self.z[i]
             if ti.static(self.traction):
                 e = self.eacc[i]
@@ -1047,11 +1079,19 @@ class CoupledStokes:
             v = self.basis[j, slot]
             self.kpart[i] = -self.sigma[i] * v[3]
             self.z[i] = ti.Vector([0.0, 0.0, 0.0, self.kpart[i]])
-        ti.loop_config(serialize=S > 1)
+        # with reuse the loop reads only its own row, else its neighbours' k (a pair pass)
+        ti.loop_config(serialize=S > self.begin_serial)
         for slot in range(n):
             i = self.rows.index[slot]
             v = self.basis[j, slot]
-            r = ti.Vector([v[0], v[1], v[2]]) - self._dt_pressure(i)
+            vu = ti.Vector([v[0], v[1], v[2]])
+            r = ti.Vector([0.0, 0.0, 0.0], ti.f64)
+            if ti.static(self.reuse):
+                t = self.tb[j, slot]
+                r = self.Bm[slot] @ ti.Vector([t[0], t[1], t[2]])
+                self.cg_g[slot] = vu - r
+            else:
+                r = vu - self._dt_pressure(i)
             self.cg_x[slot] = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.cg_r[slot] = r
             self.cg_z[slot] = self._inner_block(i, slot, energy) @ r
@@ -1205,7 +1245,12 @@ class CoupledStokes:
             z = ti.Vector([x[0], x[1], x[2], self.kpart[i]])
             self.z[i] = z
             self.Zb[j, slot] = z
-        self._apply(n, self.w, S)
+        self._apply(n, self.w, S, not self.reuse)
+        if ti.static(self.reuse):
+            ti.loop_config(serialize=S > 0)
+            for slot in range(n):
+                g = self.cg_g[slot]
+                self.w[slot] += ti.Vector([g[0], g[1], g[2], 0.0])
 
     def _block_triangular(self, n: int, j: int, S: bool) -> int:
         """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
@@ -1303,9 +1348,14 @@ class CoupledStokes:
                 blk = self._square(e, 3) + nu * (a.norm_sqr() * ti.Matrix.identity(ti.f64, 3)
                                                  + a.outer_product(a)) \
                     - self.hourglass * self._square(acc, 0)
-                self.Binv[i] = (ti.Matrix.identity(ti.f64, 3) + dt * blk).inverse()
+                b = ti.Matrix.identity(ti.f64, 3) + dt * blk
+                self.Binv[i] = b.inverse()
+                if ti.static(self.reuse):
+                    self.Bm[slot] = b
             else:
                 self.Binv[i] = weiler
+                if ti.static(self.reuse):
+                    self.Bm[slot] = ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)
                 mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
             # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
             kn = ti.cast(kappa[i], ti.f64)
@@ -1370,7 +1420,7 @@ class CoupledStokes:
         for slot in range(n):
             i = self.rows.index[slot]
             self.z[i] = self.X[i]
-        self._apply(n, self.w, S)
+        self._apply(n, self.w, S, True)
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
@@ -1419,7 +1469,7 @@ class CoupledStokes:
         for slot in range(n):
             self.w[slot] = self.basis[j, slot]
         self._precondition(n, self.w, S)
-        self._apply(n, self.w, S)
+        self._apply(n, self.w, S, True)
 
     @ti.kernel
     def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1), S: ti.template()) -> ti.f64:

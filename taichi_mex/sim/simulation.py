@@ -255,6 +255,8 @@ class Simulation:
             inner = 4 if run.dfsph.stokes_preconditioner == "block_triangular" else 0
             per_particle += (8 + inner + fp) * max_nbr + 680
             per_melt = (2 * m + 1) * 32 + weights
+            if weights and inner:
+                per_melt += 96  # B and dt G(k) by row for the inner right-hand side
             if run.dfsph.stokes_initial_guess == "extrapolated":
                 per_particle += 3 * fp
         memory = capacity * per_particle + melt_capacity * per_melt + 8 * n_cells
