@@ -1068,11 +1068,13 @@ class CoupledStokes:
         acc += ti.cast(d, ti.f64)
 
     @ti.kernel
-    def _inner_begin(self, n: ti.i32, j: ti.i32, max_it: ti.i32, S: ti.template(),
+    def _inner_begin(self, n: ti.i32, j: ti.i32, norm: ti.f64, max_it: ti.i32, S: ti.template(),
                      energy: ti.template()) -> ti.i32:
-        """z_k = -sigma v_k; the inner solve's right-hand side v_u - dt G(z_k), x = 0,
-        r = rhs, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it has stopped
-        already (rz = 0, or no iteration allowed)."""
+        """v_j = w / norm (stored here: a launch fewer an iteration); z_k = -sigma v_k; the inner solve's
+        right-hand side v_u - dt G(z_k), x = 0, r = rhs, cg_z = B^-1 r, p = 0,
+        rz = rz0 = r . B^-1 r; returns whether it has stopped already (rz = 0, or no
+        iteration allowed)."""
+        self._store_rows(n, j, norm, S)
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
@@ -1237,7 +1239,7 @@ class CoupledStokes:
 
     @ti.kernel
     def _inner_finish(self, n: ti.i32, j: ti.i32, S: ti.template()):
-        """z = (x, k), kept as Z_j; w = A z."""
+        """z = (x, k), kept as Z_j; w = A z; with the criterion's norm T w (one launch)."""
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             i = self.rows.index[slot]
@@ -1251,13 +1253,15 @@ class CoupledStokes:
             for slot in range(n):
                 g = self.cg_g[slot]
                 self.w[slot] += ti.Vector([g[0], g[1], g[2], 0.0])
+        if ti.static(self.exact):
+            self._t_of_w(n, S)
 
-    def _block_triangular(self, n: int, j: int, S: bool) -> int:
-        """w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~ with the 3 x 3
-        diagonal blocks as preconditioner, from zero, to inner_tolerance); returns the inner
-        iterations."""
+    def _block_triangular(self, n: int, j: int, norm: float, S: bool) -> int:
+        """v_j = w / norm; w = A P^-1 v_j, P^-1 v_j kept in Z_j (conjugate gradients on A~
+        with the 3 x 3 diagonal blocks as preconditioner, from zero, to inner_tolerance), and
+        T w with the criterion's norm; returns the inner iterations."""
         tol2 = self.inner_tol ** 2
-        done = self._inner_begin(n, j, self.inner_max, S, self.inner_energy)
+        done = self._inner_begin(n, j, norm, self.inner_max, S, self.inner_energy)
         while not done:
             if self.inner_energy:
                 done = self._inner_iteration_energy(n, tol2, self.inner_max, S)
@@ -1397,15 +1401,20 @@ class CoupledStokes:
 
     @ti.kernel
     def _criterion(self, n: ti.i32, S: ti.template()) -> ti.f64:
+        """T w (_t_of_w); returns |T w|^2."""
+        self._t_of_w(n, S)
+        return self._w_sum(n, False, S)
+
+    @ti.func
+    def _t_of_w(self, n, S: ti.template()):
         """tw = T w = (B^-1 (w_u - dt G(-sigma w_k)), c w_k): the velocity error w stands for
-        and its density error on the same scale (see "Norm"); returns |T w|^2."""
+        and its density error on the same scale (see "Norm")."""
         self._pressure_error(n, S)
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             e = self.Binv[i] @ self._velocity_error(i, slot)
             self.tw[slot] = ti.Vector([e[0], e[1], e[2], self.crho[None] * self.w[slot][3]])
-        return self._w_sum(n, False, S)
 
     @ti.kernel
     def _residual(self, n: ti.i32, S: ti.template()) -> ti.types.vector(3, ti.f64):
@@ -1463,18 +1472,28 @@ class CoupledStokes:
         return self.out3[None]
 
     @ti.kernel
-    def _arnoldi_apply(self, n: ti.i32, j: ti.i32, S: ti.template()):
-        """w = A M^-1 v_j."""
+    def _arnoldi_apply(self, n: ti.i32, j: ti.i32, norm: ti.f64, S: ti.template()):
+        """v_j = w / norm; w = A M^-1 v_j; with the criterion's norm T w (one launch)."""
+        self._store_rows(n, j, norm, S)
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             self.w[slot] = self.basis[j, slot]
         self._precondition(n, self.w, S)
         self._apply(n, self.w, S, True)
+        if ti.static(self.exact):
+            self._t_of_w(n, S)
 
     @ti.kernel
     def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1), S: ti.template()) -> ti.f64:
-        """One pass of classical Gram-Schmidt in one launch: out_l = v_l . w for l = 0..j
-        (block by block, then the blocks in order), w -= sum_l out_l v_l; returns |w|^2."""
+        """Classical Gram-Schmidt twice (Giraud et al. 2005) in one launch, each pass:
+        c_l = v_l . w for l = 0..j (block by block, then the blocks in order),
+        w -= sum_l c_l v_l; out_l = the two passes' c_l summed (H's column); returns |w|^2."""
+        for gs_pass in ti.static(range(2)):
+            self._gram_schmidt_pass(n, j, out, gs_pass, S)
+        return self._w_sum(n, False, S)
+
+    @ti.func
+    def _gram_schmidt_pass(self, n, j, out: ti.template(), gs_pass: ti.template(), S: ti.template()):
         nb = (n + self.block - 1) // self.block
         ti.loop_config(serialize=S > 1)
         for l, b in ti.ndrange(j + 1, nb):
@@ -1491,9 +1510,11 @@ class CoupledStokes:
             for b in range(nb):
                 s += self.part[l, b]
             self.coef[l] = s
-            out[l] = s
+            if ti.static(gs_pass == 0):
+                out[l] = s
+            else:
+                out[l] += s
         self._orthogonalise(n, j, S)
-        return self._w_sum(n, False, S)
 
     @ti.func
     def _orthogonalise(self, n, j, S: ti.template()):
@@ -1510,9 +1531,9 @@ class CoupledStokes:
                     t -= self.coef[l] * self.tb[l, slot]
                 self.tw[slot] = t
 
-    @ti.kernel
-    def _store(self, n: ti.i32, j: ti.i32, norm: ti.f64, S: ti.template()):
-        """v_j = w / norm."""
+    @ti.func
+    def _store_rows(self, n, j, norm, S: ti.template()):
+        """v_j = w / norm (and T v_j = T w / norm)."""
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
             self.basis[j, slot] = self.w[slot] / norm
@@ -1655,7 +1676,7 @@ class CoupledStokes:
                       iterations, rel, rmax, beta)
             if done or iterations >= self.max_iterations or beta == 0.0:
                 break  # w holds the residual of X: the result is read from it below
-            self._store(n, 0, beta, S)
+            norm = beta  # v_j = w / norm, stored by the launch that multiplies by v_j
             H = np.zeros((m + 1, m))
             cs, sn = np.zeros(m), np.zeros(m)
             g = np.zeros(m + 1)
@@ -1663,18 +1684,13 @@ class CoupledStokes:
             k = 0
             for j in range(m):
                 if self.flexible:
-                    inner += self._block_triangular(n, j, S)
+                    inner += self._block_triangular(n, j, norm, S)
                 else:
-                    self._arnoldi_apply(n, j, S)
-                if self.exact:
-                    self._criterion(n, S)
+                    self._arnoldi_apply(n, j, norm, S)
                 h = np.zeros(j + 2)
-                for _ in range(2):  # classical Gram-Schmidt, twice (Giraud et al. 2005)
-                    norm2 = self._gram_schmidt(n, j, self.dots_out, S)
-                    h[: j + 1] += self.dots_out[: j + 1]
-                h[j + 1] = breakdown = float(np.sqrt(norm2))
-                if breakdown > 0.0:
-                    self._store(n, j + 1, breakdown, S)
+                norm2 = self._gram_schmidt(n, j, self.dots_out, S)
+                h[: j + 1] = self.dots_out[: j + 1]
+                h[j + 1] = norm = breakdown = float(np.sqrt(norm2))
                 for l in range(j):  # earlier Givens rotations
                     a, b = h[l], h[l + 1]
                     h[l], h[l + 1] = cs[l] * a + sn[l] * b, -sn[l] * a + cs[l] * b
