@@ -939,8 +939,8 @@ class CoupledStokes:
 
     @ti.func
     def _apply(self, n, out: ti.template(), S: ti.template(), pressure: ti.template()):
-        """out = A z on the melt rows (z: the preconditioned vector); pressure False: without
-        dt G(z's k), which the caller adds."""
+        """out = A z on the melt rows (z: the preconditioned vector); pressure False: dt G(z's
+        k) read from cg_g instead of summed over the pairs (see "Inner right-hand side")."""
         self._viscous_of_z(n, S)
         dt = self.dt[None]
         ti.loop_config(serialize=S > 1)
@@ -956,9 +956,12 @@ class CoupledStokes:
                 e = self.eacc[i]
                 for d in ti.static(range(3)):
                     acc[d] += e[d]
-            out[slot] = ti.Vector([zi[0] - dt * acc[0] + dt * acc[3], zi[1] - dt * acc[1] + dt * acc[4],
-                                zi[2] - dt * acc[2] + dt * acc[5],
-                                self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])])
+            gk = ti.Vector([dt * acc[3], dt * acc[4], dt * acc[5]])
+            if ti.static(not pressure):
+                gk = self.cg_g[slot]
+            out[slot] = ti.Vector([zi[0] - dt * acc[0] + gk[0], zi[1] - dt * acc[1] + gk[1],
+                                   zi[2] - dt * acc[2] + gk[2],
+                                   self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])])
 
     @ti.func
     def _precondition(self, n, v: ti.template(), S: ti.template()):
@@ -1248,11 +1251,6 @@ class CoupledStokes:
             self.z[i] = z
             self.Zb[j, slot] = z
         self._apply(n, self.w, S, not self.reuse)
-        if ti.static(self.reuse):
-            ti.loop_config(serialize=S > 0)
-            for slot in range(n):
-                g = self.cg_g[slot]
-                self.w[slot] += ti.Vector([g[0], g[1], g[2], 0.0])
         if ti.static(self.exact):
             self._t_of_w(n, S)
 
@@ -1621,10 +1619,10 @@ class CoupledStokes:
         one thread, while a loop over the neighbours of a few thousand rows takes tenths of
         a millisecond (the solve gains from two threads from about 4,000 rows: see the options).
         Every loop writes its own rows and every sum goes block by block in a fixed order, so
-        the choices differ only in how the compiler arranged each loop's arithmetic:
-        identical on the film (test), the same iteration counts on the bundled bead, not on
-        benchy's window (32.4 against 32.9 GMRES iterations a step over 691 steps, both
-        converged)."""
+        the choices differ only in how the compiler arranged each loop's arithmetic (fast
+        math's contractions): on the film the same iterations and velocities 2e-8 of the
+        fastest apart (test), the same iteration counts on the bundled bead, not on benchy's
+        window (32.4 against 32.9 GMRES iterations a step over 691 steps, both converged)."""
         if not self.on_cpu:
             return 0
         if n < self.pair_rows:
