@@ -147,13 +147,16 @@ def test_the_inner_solve_multiplies_by_the_systems_own_viscous_block():
     S = st.serial(n)
     rng = np.random.default_rng(0)
     p1, p2 = SPEED * rng.normal(size=(n, 3)), SPEED * rng.normal(size=(n, 3))
-    # the system's momentum rows at (p1, k = 0): _inner_finish applies A to (x, kpart)
+    # the system's momentum rows at (p1, k = 0): _inner_finish applies A to (x, kpart), its
+    # dt G(kpart) read from cg_g ("Inner right-hand side"), zero here
     x = st.cg_x.to_numpy()
     x[:n] = p1
     st.cg_x.from_numpy(x)
     k = st.kpart.to_numpy()
     k[:] = 0.0
     st.kpart.from_numpy(k)
+    assert st.reuse
+    st.cg_g.fill(0.0)
     st._inner_finish(n, 0, S)
     w = st.w.to_numpy()[:n, :3]
     q1 = _inner_operator(st, p1, S)
