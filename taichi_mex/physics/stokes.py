@@ -362,8 +362,9 @@ log = logging.getLogger(__name__)
 #: passes over the melt's neighbour lists (walls' passes counted as whole ones): a GMRES
 #: iteration of the block-triangular preconditioner (the criterion's pressure sum and the
 #: operator's product: the walls' ghosts, the strain-energy form's three passes and one of
-#: its own; the inner solve's G(k) is read from T v, see "Inner right-hand side"), and an inner iteration on the strain-energy form (ghosts, three, its walls'
-#: adjoint sums); one on Weiler's sum is one pass
+#: its own; the inner solve's G(k) is read from T v, see "Inner right-hand side"), and an
+#: inner iteration on the strain-energy form (ghosts, three, its walls' adjoint sums); one
+#: on Weiler's sum is one pass
 OUTER_PASSES = 6
 ENERGY_INNER_PASSES = 4
 #: a GMRES iteration's Gram-Schmidt over one earlier Krylov vector (twice: dots and update),
@@ -1083,10 +1084,10 @@ class CoupledStokes:
     @ti.kernel
     def _inner_begin(self, n: ti.i32, j: ti.i32, norm: ti.f64, max_it: ti.i32, S: ti.template(),
                      energy: ti.template()) -> ti.i32:
-        """v_j = w / norm (stored here: a launch fewer an iteration); z_k = -sigma v_k; the inner solve's
-        right-hand side v_u - dt G(z_k), x = 0, r = rhs, cg_z = B^-1 r, p = 0,
-        rz = rz0 = r . B^-1 r; returns whether it has stopped already (rz = 0, or no
-        iteration allowed)."""
+        """v_j = w / norm (stored here: a launch fewer an iteration); z_k = -sigma v_k; the
+        inner solve's right-hand side e = v_u - dt G(z_k) (from T v_j with the criterion's
+        norm), x = 0, r = e, cg_z = B^-1 r, p = 0, rz = rz0 = r . B^-1 r; returns whether it
+        has stopped already (rz = 0, or no iteration allowed)."""
         self._store_rows(n, j, norm, S)
         ti.loop_config(serialize=S > 0)
         for slot in range(n):
