@@ -338,11 +338,12 @@ in the operator's launch, both Gram-Schmidt passes in one): Taichi's Python side
 a launch here. Measured side by side on one host (2 cores, 2026-12-06, code `7dea78f` then
 this): the paper block resumed at t = 1.664 s, 65 steps, 262 -> 221 and later 301 -> 255 ms a
 step (1.18x; the host's pace drifted between the pairs), the same 20.58 / 121.66 GMRES / inner
-iterations a step; the bundled bead at standard 125.7 -> 110.5 s (1.14x), the same 823 steps,
-W / H 0.504 / 0.181 -> 0.503 / 0.181 mm. On the squeeze film every path (the criterion's or
-the Euclidean norm, block-triangular or block-diagonal preconditioner) takes the iterations
-it took before, and each lies as far from the default's velocities as before (1.0e-5 to
-2.5e-5 of the fastest, at tolerances of 1e-6).
+iterations a step; the bundled bead at standard 117.5 -> 106.2 s (1.11x; the processes 125.7 ->
+110.5 s), the same 823 steps, W / H 0.504 / 0.181 -> 0.503 / 0.181 mm; the paper block to print
+time 0.9 s 217.3 -> 191.3 s (1.14x), the same 1,760 steps. On the squeeze film every path
+(the criterion's or the Euclidean norm, block-triangular or block-diagonal preconditioner)
+takes the iterations it took before, and each lies as far from the default's velocities as
+before (1.0e-5 to 2.5e-5 of the fastest, at tolerances of 1e-6).
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
