@@ -1346,7 +1346,9 @@ class CoupledStokes:
             i = self.rows.index[slot]
             acc = ti.Vector.zero(ti.f64, 13)
             self.grid.for_each_listed(i, self._setup_task, acc)
-            weiler = (ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)).inverse()
+            sq = self._square(acc, 0)  # Weiler's sum's diagonal block
+            b = ti.Matrix.identity(ti.f64, 3) - dt * sq  # B on Weiler's rows (the form's below)
+            weiler = b.inverse()
             self.Binv_in[slot] = weiler
             v = ti.cast(self.state.v[i], ti.f64) + dt * g
             if self.state.x[i][2] > a_above:
@@ -1361,16 +1363,14 @@ class CoupledStokes:
                 # the hourglass term's pair part: Weiler's block scaled by its weight
                 blk = self._square(e, 3) + nu * (a.norm_sqr() * ti.Matrix.identity(ti.f64, 3)
                                                  + a.outer_product(a)) \
-                    - self.hourglass * self._square(acc, 0)
+                    - self.hourglass * sq
                 b = ti.Matrix.identity(ti.f64, 3) + dt * blk
                 self.Binv[i] = b.inverse()
-                if ti.static(self.reuse):
-                    self.Bm[slot] = b
             else:
                 self.Binv[i] = weiler
-                if ti.static(self.reuse):
-                    self.Bm[slot] = ti.Matrix.identity(ti.f64, 3) - dt * self._square(acc, 0)
                 mom -= dt * ti.Vector([acc[9], acc[10], acc[11]])
+            if ti.static(self.reuse):
+                self.Bm[slot] = b
             # the melt's compressibility: dt D(u) - (k - k_n) / c^2 = dt s
             kn = ti.cast(kappa[i], ti.f64)
             s = -self.c2inv[None] / dt * kn
