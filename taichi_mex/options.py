@@ -501,6 +501,12 @@ class DFSPHOptions:
         "step at the defaults against 34.6 / 257 Euclidean at the earlier ones (inner 0.1, "
         "tolerances 1e-3)",
         check=OneOf("criterion", "euclidean"))
+    stokes_gram_schmidt_passes: int = opt(
+        1, help="coupled solve: classical Gram-Schmidt passes a GMRES iteration orthogonalises "
+        "its new vector with (1 or 2). It sets the cost, not the answer: the true residual at "
+        "each restart decides the stop (physics/stokes.py, \"Orthogonalisation\"). The paper "
+        "block's steps 1.03-1.15x faster with 1 (2026-12-06, 2 cores), the same iterations",
+        check=Range(1, 2, integer=True))
     stokes_initial_guess: str = opt(
         "previous", help="coupled solve: where GMRES starts, 'previous' (the melt's present "
         "velocity v_n) or 'extrapolated' (each melt particle's from its last two steps, "

@@ -345,6 +345,31 @@ time 0.9 s 217.3 -> 191.3 s (1.14x), the same 1,760 steps. On the squeeze film e
 takes the iterations it took before, and each lies as far from the default's velocities as
 before (1.0e-5 to 2.5e-5 of the fastest, at tolerances of 1e-6).
 
+Orthogonalisation: each GMRES iteration makes its new vector orthogonal to the basis, in the
+criterion's inner product, by classical Gram-Schmidt (the dots with every earlier vector in
+one sweep, their combination removed in the next: two sweeps whatever the basis' size, where
+the modified process takes one per vector). One pass loses orthogonality in proportion to
+eps times the square of the condition number of the vectors it is given, a second pass
+restores it to working precision ("twice is enough": Giraud, Langou & Rozloznik, Comput. Math.
+Appl. 50, 2005). Orthogonality lost would cost iterations, not accuracy: the stop reads the
+true residual at each restart. A solve that stops at a residual fall of 3e-4 keeps that
+condition number modest, and one pass (``stokes_gram_schmidt_passes``, 1 by default; PETSc's
+GMRES takes one pass unless told otherwise as well) took the same iterations as two on every
+case measured: the squeeze film 24 / 61 GMRES / inner iterations at the default tolerances
+and 61 / 142 at 1e-6, velocities 2e-8 and 8e-8 of the fastest apart; the bore flow at 8 per
+radius 202 / 942 and the block-diagonal preconditioner's 464 (three restarts) at 4, the same
+profile. Daniel, Gragg, Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where
+the first removed more of the vector than it left) asked for it in 23 of the film's 24
+iterations and 60 of 61, so it is not offered. Measured side by side (2026-12-06, 2 cores,
+two passes then one): the paper block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66
+both, 263-273 -> 228-237 ms a step (1.15x) in two pairs and 258-270 -> 237-262 ms (1.03-1.09x)
+in two more, Gram-Schmidt 1.55 -> 0.78 ms an iteration (15 -> 8 % of the kernel time);
+benchy's window to print time 179 s 93.9 -> 88.8 s (1.06x), the same 1,609 steps, 14.1 / 55
+-> 13.9 / 52 a step (rounding); the bundled bead at standard 107.6 -> 104.5 s (1.03x), the
+same 823 steps, W / H 0.503 / 0.181 -> 0.501 / 0.182 mm; the collapse at 0.4 mm to 3 s
+100.3-105.4 -> 96.6-98.0 s (1.02-1.09x), the same 83 steps, Huppert's coefficient 0.9804 and
+0.9805 of his.
+
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
 
@@ -368,11 +393,12 @@ log = logging.getLogger(__name__)
 #: on Weiler's sum is one pass
 OUTER_PASSES = 6
 ENERGY_INNER_PASSES = 4
-#: a GMRES iteration's Gram-Schmidt over one earlier Krylov vector (twice: dots and update),
-#: in passes: fitted to the collapse at 0.2 mm (steps of 48 and 121 GMRES iterations a
-#: solve, 2.2 and 8.2 s, 2 cores, 2026-12-05; 2.0 ms a pass, 0.69 ms a vector), where
-#: Weiler's inner operator's long solves spend more on these sweeps than on their passes
-KRYLOV_SWEEP_PASSES = 1.0 / 3.0
+#: one Gram-Schmidt pass over one earlier Krylov vector (its dots and its update), in passes
+#: over the neighbour lists: fitted to the collapse at 0.2 mm with two Gram-Schmidt passes an
+#: iteration (steps of 48 and 121 GMRES iterations a solve, 2.2 and 8.2 s, 2 cores,
+#: 2026-12-05; 2.0 ms a pass, 0.69 ms a vector for both), where Weiler's inner operator's long
+#: solves spend more on these sweeps than on their passes
+KRYLOV_SWEEP_PASSES = 1.0 / 6.0
 
 #: the share of Morris's isotropic term in each viscous pair term where the pair sum is the
 #: system's viscous term and none is given, the rest Weiler's projected one (see "Operators")
@@ -420,6 +446,7 @@ class CoupledStokes:
                        "Zb", "cg_x", "cg_r", "cg_p", "cg_q", "cg_z", "cg_part", "kpart", "total", "alpha",
                        "cg_rz", "cg_rz0", "cg_beta", "cg_it", "cg_done",
                        "dots_out", "c2inv", "coef", "tw", "tb", "crho", "reuse", "Bm", "cg_g", "begin_serial",
+                       "gs_passes",
                        # the machine's, not the run's: a resume elsewhere takes its own
                        "on_cpu", "serial_rows", "pair_rows")
 
@@ -474,6 +501,7 @@ class CoupledStokes:
         self.c2inv[None] = self.inv_c2
         self.flexible = opts.stokes_preconditioner == "block_triangular"
         self.inner_tol = float(opts.stokes_inner_tolerance)
+        self.gs_passes = int(opts.stokes_gram_schmidt_passes)  # see "Orthogonalisation"
         # the inner solve's operator (see "block-triangular preconditioner"): the system's own
         # viscous block (with the traction, the strain-energy form) or Weiler's pair sum
         # ('auto': per step, see "block-triangular preconditioner"); the next solve's choice
@@ -1495,10 +1523,10 @@ class CoupledStokes:
 
     @ti.kernel
     def _gram_schmidt(self, n: ti.i32, j: ti.i32, out: ti.types.ndarray(dtype=ti.f64, ndim=1), S: ti.template()) -> ti.f64:
-        """Classical Gram-Schmidt twice (Giraud et al. 2005) in one launch, each pass:
-        c_l = v_l . w for l = 0..j (block by block, then the blocks in order),
-        w -= sum_l c_l v_l; out_l = the two passes' c_l summed (H's column); returns |w|^2."""
-        for gs_pass in ti.static(range(2)):
+        """Classical Gram-Schmidt, gs_passes passes in one launch (see "Orthogonalisation"),
+        each: c_l = v_l . w for l = 0..j (block by block, then the blocks in order),
+        w -= sum_l c_l v_l; out_l = the passes' c_l summed (H's column); returns |w|^2."""
+        for gs_pass in ti.static(range(self.gs_passes)):
             self._gram_schmidt_pass(n, j, out, gs_pass, S)
         return self._w_sum(n, False, S)
 
@@ -1665,7 +1693,7 @@ class CoupledStokes:
         self.previous_dt = float(dt) if extrapolate else 0.0
         free = self._find_free(n, S)
         iterations = 0
-        sweeps = 0  # Krylov vectors Gram-Schmidt went over, all iterations together
+        sweeps = 0  # Gram-Schmidt's passes over earlier Krylov vectors, all iterations together
         m = self.m
         while True:
             if free:
@@ -1712,7 +1740,7 @@ class CoupledStokes:
                 H[: j + 2, j] = h
                 k = j + 1
                 iterations += 1
-                sweeps += j + 1
+                sweeps += (j + 1) * self.gs_passes
                 # |g[j + 1]| is the iterate's residual norm (right preconditioning): end the
                 # cycle once the criteria, scaled by how far it fell since the cycle began,
                 # are met; the true residuals decide at the top of the loop (a cycle that
