@@ -505,7 +505,7 @@ class DFSPHOptions:
         1, help="coupled solve: classical Gram-Schmidt passes a GMRES iteration orthogonalises "
         "its new vector with (1 or 2). It sets the cost, not the answer: the true residual at "
         "each restart decides the stop (physics/stokes.py, \"Orthogonalisation\"). The paper "
-        "block's steps 1.03-1.15x faster with 1 (2026-12-06, 2 cores), the same iterations",
+        "block's steps 1.03-1.16x faster with 1 (2026-12-06, 2 cores), the same iterations",
         check=Range(1, 2, integer=True))
     stokes_initial_guess: str = opt(
         "previous", help="coupled solve: where GMRES starts, 'previous' (the melt's present "

@@ -351,24 +351,25 @@ one sweep, their combination removed in the next: two sweeps whatever the basis'
 the modified process takes one per vector). One pass loses orthogonality in proportion to
 eps times the square of the condition number of the vectors it is given, a second pass
 restores it to working precision ("twice is enough": Giraud, Langou & Rozloznik, Comput. Math.
-Appl. 50, 2005). Orthogonality lost would cost iterations, not accuracy: the stop reads the
-true residual at each restart. A solve that stops at a residual fall of 3e-4 keeps that
-condition number modest, and one pass (``stokes_gram_schmidt_passes``, 1 by default; PETSc's
-GMRES takes one pass unless told otherwise as well) took the same iterations as two on every
-case measured: the squeeze film 24 / 61 GMRES / inner iterations at the default tolerances
+Appl. 50, 2005). In GMRES that condition number grows about as the residual falls (Paige,
+Rozloznik & Strakos, SIAM J. Matrix Anal. Appl. 28, 2006, for the modified process), so a solve
+stopped at a fall of 3e-4 stays far from where one pass would lose its basis; and
+orthogonality lost would cost iterations, not accuracy: the stop reads the true residual at
+each restart. One pass (``stokes_gram_schmidt_passes``, 1 by default; PETSc's GMRES takes one
+unless told otherwise as well) took the same iterations as two on every case measured: the squeeze film 24 / 61 GMRES / inner iterations at the default tolerances
 and 61 / 142 at 1e-6, velocities 2e-8 and 8e-8 of the fastest apart; the bore flow at 8 per
 radius 202 / 942 and the block-diagonal preconditioner's 464 (three restarts) at 4, the same
 profile. Daniel, Gragg, Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where
 the first removed more of the vector than it left) asked for it in 23 of the film's 24
 iterations and 60 of 61, so it is not offered. Measured side by side (2026-12-06, 2 cores,
 two passes then one): the paper block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66
-both, 263-273 -> 228-237 ms a step (1.15x) in two pairs and 258-270 -> 237-262 ms (1.03-1.09x)
-in two more, Gram-Schmidt 1.55 -> 0.78 ms an iteration (15 -> 8 % of the kernel time);
-benchy's window to print time 179 s 93.9 -> 88.8 s (1.06x), the same 1,609 steps, 14.1 / 55
--> 13.9 / 52 a step (rounding); the bundled bead at standard 107.6 -> 104.5 s (1.03x), the
-same 823 steps, W / H 0.503 / 0.181 -> 0.501 / 0.182 mm; the collapse at 0.4 mm to 3 s
-100.3-105.4 -> 96.6-98.0 s (1.02-1.09x), the same 83 steps, Huppert's coefficient 0.9804 and
-0.9805 of his.
+in every run, 273 -> 237, 264 -> 228 and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
+270 -> 262 and 258 -> 237 ms (1.03-1.09x) in two more, Gram-Schmidt 1.55 -> 0.78 ms an
+iteration (15 -> 8 % of the kernel time); benchy's window to print time 179 s 93.9 -> 88.8 s
+(1.06x), the same 1,609 steps, 14.1 / 55 -> 13.9 / 52 a step (rounding); the bundled bead at
+standard 107.6 -> 104.5 s (1.03x), the same 823 steps, W / H 0.503 / 0.181 -> 0.501 / 0.182
+mm; the collapse at 0.4 mm to 3 s 100.3-105.4 -> 96.6-98.0 s (1.02-1.09x), the same 83 steps,
+Huppert's coefficient 0.9804 and 0.9805 of his.
 
 An unconverged solve is reported as such (``converged``); the caller must not keep its step.
 """
