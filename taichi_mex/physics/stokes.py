@@ -356,12 +356,13 @@ Rozloznik & Strakos, SIAM J. Matrix Anal. Appl. 28, 2006, for the modified proce
 stopped at a fall of 3e-4 stays far from where one pass would lose its basis; and
 orthogonality lost would cost iterations, not accuracy: the stop reads the true residual at
 each restart. One pass (``stokes_gram_schmidt_passes``, 1 by default; PETSc's GMRES takes one
-unless told otherwise as well) took the same iterations as two on every case measured: the squeeze film 24 / 61 GMRES / inner iterations at the default tolerances
-and 61 / 142 at 1e-6, velocities 2e-8 and 8e-8 of the fastest apart; the bore flow at 8 per
-radius 202 / 942 and the block-diagonal preconditioner's 464 (three restarts) at 4, the same
-profile. Daniel, Gragg, Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where
-the first removed more of the vector than it left) asked for it in 23 of the film's 24
-iterations and 60 of 61, so it is not offered. Measured side by side (2026-12-06, 2 cores,
+unless told otherwise as well) took the same iterations as two on every case measured: the
+squeeze film 24 / 61 GMRES / inner iterations at the default tolerances and 61 / 142 at 1e-6,
+velocities 2e-8 and 8e-8 of the fastest apart; the bore flow at 8 per radius 202 / 942 and the
+block-diagonal preconditioner's 464 (three restarts) at 4, the same profile. Daniel, Gragg,
+Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where the first removed more of
+the vector than it left) asked for it in 23 of the film's 24 iterations and 60 of 61, so it is
+not offered. Measured side by side (2026-12-06, 2 cores,
 two passes then one): the paper block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66
 in every run, 273 -> 237, 264 -> 228 and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
 270 -> 262 and 258 -> 237 ms (1.03-1.09x) in two more, Gram-Schmidt 1.55 -> 0.78 ms an
