@@ -334,7 +334,7 @@ iteration took, the criterion's is the one left. T v_j comes from Gram-Schmidt's
 v_j does, and B (B^-1 e) returns e to eps cond(B), ~1e-11 at nu dt / dx^2 ~ 1e5, far below the
 solve's 3e-4; the true residual at each restart decides the stop as before. A GMRES iteration
 also takes five launches instead of eight (v_j stored by the launch that multiplies by it, T w
-in the operator's launch, both Gram-Schmidt passes in one): Taichi's Python side costs ~0.15 ms
+in the operator's launch, Gram-Schmidt's passes in one): Taichi's Python side costs ~0.15 ms
 a launch here. Measured side by side on one host (2 cores, 2026-12-06, code `7dea78f` then
 this): the paper block resumed at t = 1.664 s, 65 steps, 262 -> 221 and later 301 -> 255 ms a
 step (1.18x; the host's pace drifted between the pairs), the same 20.58 / 121.66 GMRES / inner
@@ -362,9 +362,8 @@ velocities 2e-8 and 8e-8 of the fastest apart; the bore flow at 8 per radius 202
 block-diagonal preconditioner's 464 (three restarts) at 4, the same profile. Daniel, Gragg,
 Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where the first removed more of
 the vector than it left) asked for it in 23 of the film's 24 iterations and 60 of 61, so it is
-not offered. Measured side by side (2026-12-06, 2 cores,
-two passes then one): the paper block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66
-in every run, 273 -> 237, 264 -> 228 and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
+not offered. Measured side by side (2026-12-06, 2 cores, two passes then one): the paper
+block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66 in every run, 273 -> 237, 264 -> 228 and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
 270 -> 262 and 258 -> 237 ms (1.03-1.09x) in two more, Gram-Schmidt 1.55 -> 0.78 ms an
 iteration (15 -> 8 % of the kernel time); benchy's window to print time 179 s 93.9 -> 88.8 s
 (1.06x), the same 1,609 steps, 14.1 / 55 -> 13.9 / 52 a step (rounding); the bundled bead at
