@@ -102,21 +102,30 @@ def test_viscosity_models():
     assert 1e2 < wlf.zero_shear_viscosity(220.0) < 1e4
 
 
-def test_print_reports_creeping_numbers_and_scales_honestly(tmp_path):
+def test_print_runs_the_real_viscosity_and_reports_creeping_numbers_honestly():
+    """A print solves the melt at its real viscosity unless told a factor; the creeping
+    numbers are reported both ways, and the retired 'auto' scaling is refused with what to
+    do instead."""
     from taichi_mex import bundled
+    from taichi_mex.errors import UserInputError
     from taichi_mex.scenes.print import PrintScene
+    from taichi_mex.spec import RunSpec
 
     scene = PrintScene(bundled.gcode_path("single_bead"), until_s=0.32)
-    sim = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, progress=False,
-                                       snapshots=False), Material(viscosity_pa_s=1000.0))
-    c = sim.creeping
-    limit = sim.run_opts.creeping_limit
-    assert 0 < c["viscosity_scale"] < 1
-    assert max(c["reynolds"], c["gravity_number"], c["gravity_slump"]) == pytest.approx(limit, rel=1e-9)
-    assert c["reynolds"] == pytest.approx(c["reynolds_unscaled"] / c["viscosity_scale"])
-    off = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, viscosity_scale=1.0), Material())
-    assert off.creeping["viscosity_scale"] == 1.0 and off.creeping["reynolds"] < 1e-3
-    assert "creeping-flow scaling" in sim.describe_creeping()
+    real = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, progress=False,
+                                        snapshots=False), Material(viscosity_pa_s=1000.0))
+    c = real.creeping
+    assert c["viscosity_scale"] == 1.0 and c["viscosity_as_run_pa_s"] == pytest.approx(1000.0)
+    assert c["reynolds"] == c["reynolds_unscaled"] < 1e-3
+    assert "real viscosity" in real.describe_creeping()
+    thin = Simulation(scene, RunOptions(scheme="dfsph", spacing_mm=0.1, viscosity_scale=0.01,
+                                        progress=False, snapshots=False), Material(viscosity_pa_s=1000.0))
+    t = thin.creeping
+    for key in ("reynolds", "gravity_number", "gravity_slump"):
+        assert t[key] == pytest.approx(c[key] / 0.01, rel=1e-12)
+    assert "creeping-flow scaling" in thin.describe_creeping()
+    with pytest.raises(UserInputError, match="retired.*Leave the option out"):
+        RunSpec.create("print", changes={"viscosity_scale": "auto"})
 
 
 def test_a_description_with_the_retired_stabilisers_says_what_to_do():

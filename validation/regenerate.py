@@ -490,10 +490,12 @@ CASES = {
     "strands": Case(
         "the bundled single bead (0.2 mm gap, 0.4 mm nozzle, 60 mm/s, PLA 1000 Pa s, DFSPH): "
         "section against the commanded area and the slicer's rounded rectangle",
-        [(f"{res}{' unscaled' if off else ''}",
-          bead("--resolution", res, *(["--viscosity-scale", "off"] if off else [])))
-         for res, off in (("draft", False), ("standard", False), ("standard", True), ("fine", False))],
-        [("0.1 mm unscaled", bead("--resolution", 0.1, "--viscosity-scale", "off"))],
+        # the default runs the real viscosity (since 2026-12-06); x 0.0127 is what the retired
+        # 'auto' scaling gave this bead
+        [(f"{res}{', viscosity x 0.0127' if thin else ''}",
+          bead("--resolution", res, *(["--viscosity-scale", 0.0127] if thin else [])))
+         for res, thin in (("draft", False), ("standard", False), ("standard", True), ("fine", False))],
+        [("0.1 mm", bead("--resolution", 0.1))],
         COMMON + BEAD + DENSITY),
     "strands_coupled": Case(
         "single beads of six gap / line-width combinations under the 0.4 mm nozzle (60 mm/s, "
@@ -697,7 +699,7 @@ CASES = {
     "mesostructure": Case(
         "pairing and voids in the single bead's section (standard spacing, whole bead)",
         [(f"standard, {v}", bead("--resolution", "standard", "--viscosity-scale", v))
-         for v in ("off", "auto")],
+         for v in ("off", "0.0127")],
         [("0.1 mm, off", bead("--resolution", 0.1, "--viscosity-scale", "off"))],
         COMMON + [("viscosity x", num("viscosity_scale", "{:.3g}"))] + DENSITY
         + [("section W / H mm", lambda r: f"{r.get('bead_width_mm') or float('nan'):.3f} / "

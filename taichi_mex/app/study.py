@@ -36,7 +36,7 @@ LADDERS = {
             ("coupled dx=0.067 (draft), dt x2", {"spacing_mm": 0.0667, "dt_factor": 2.0}),
             ("coupled dx=0.05 (standard)", {"spacing_mm": 0.05}),
             ("coupled dx=0.05 f64", {"spacing_mm": 0.05, "precision": "f64"}),
-            ("coupled dx=0.05 unscaled", {"spacing_mm": 0.05, "viscosity_scale": 1.0}),
+            ("coupled dx=0.05 viscosity x 0.0127", {"spacing_mm": 0.05, "viscosity_scale": 0.0127}),
             ("coupled dx=0.033 (fine)", {"spacing_mm": 0.0333}),
             ("edac paper dx=0.1", {"spacing_mm": 0.1, "preset": "paper", "gcode": "single_bead"}),
         ],

@@ -73,7 +73,7 @@ class ScenePlan:
     wall_speed_m_s: object = None
     #: heat's diffusion limit for scenes that know it up front (s)
     thermal_dt_s: float | None = None
-    #: print scenes: the scales of the creeping-flow numbers (viscosity scaling)
+    #: print scenes: the scales of the creeping-flow numbers (reported; idle spans)
     creeping: CreepingScales | None = None
     #: spans (t_from, t_to) in s in which nothing the scene prescribes touches the domain (the
     #: nozzle is outside it): a creeping melt may skip them (RunOptions.skip_idle)

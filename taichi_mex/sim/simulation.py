@@ -170,26 +170,17 @@ class Simulation:
     def _creeping_numbers(self) -> dict:
         """Reynolds number Re = rho U L / eta, gravity number G = rho g L^2 / (eta U) and the
         gravity slump over the run S = rho g L T / eta (strain a layer of thickness L would
-        creep under its own weight in time T), unscaled and as run, plus the scale used.
-
-        All three fall as 1/eta: scaling the viscosity by s keeps the flow creeping while
-        every number stays below the limit, and leaves bead shapes set by the nozzle."""
+        creep under its own weight in time T), at the real viscosity and as run (times
+        1 / viscosity_scale: all three fall as 1 / eta)."""
         scales = self.plan.creeping
-        run = self.run_opts
+        scale = float(self.run_opts.viscosity_scale)
         eta = self.material.zero_shear_viscosity(self.material.extrusion_temperature_c)
-        rho, g = self.material.density_kg_m3, run.gravity_m_s2
+        rho, g = self.material.density_kg_m3, self.run_opts.gravity_m_s2
         if scales is None or eta <= 0:
-            scale = 1.0 if run.viscosity_scale == "auto" else float(run.viscosity_scale)
             return {"viscosity_scale": scale}
         U, L, T = scales.speed_m_s, scales.length_m, scales.duration_s
         raw = {"reynolds": rho * U * L / eta, "gravity_number": rho * g * L * L / (eta * U),
                "gravity_slump": rho * g * L * T / eta}
-        if run.viscosity_scale == "auto":
-            scale = 1.0
-            if run.scheme == "dfsph":
-                scale = min(1.0, max(raw.values()) / run.creeping_limit)
-        else:
-            scale = float(run.viscosity_scale)
         out = {"viscosity_scale": scale, "viscosity_as_run_pa_s": eta * scale}
         for key, value in raw.items():
             out[f"{key}_unscaled"] = value
