@@ -99,3 +99,27 @@ def test_a_substrate_without_heat_is_listed_as_a_wall(solid_lists):
         listed = ph[i] == FLUID or near[i] or solid_lists
         np.testing.assert_array_equal(got[i], expect[i] if listed else [])
     assert (~near & (ph == SOLID)).sum() > 10  # most of the substrate is out of reach
+
+
+def test_field_lengths_come_in_eight_sizes_an_octave_so_nearby_runs_share_kernels():
+    """Taichi compiles field shapes into its kernels: particle capacities and grid cell
+    arrays are rounded up to one of eight lengths an octave, never short and at most 12.5 %
+    long, so that the bundled bead to print times 0.343 and 0.344 s (other particle counts,
+    another grid) get the same shapes."""
+    from taichi_mex import bundled
+    from taichi_mex.options import Material, RunOptions
+    from taichi_mex.core.state import shape_bucket
+    from taichi_mex.scenes.print import PrintScene
+    from taichi_mex.sim.simulation import Simulation
+
+    for n in range(1, 5000):
+        b = shape_bucket(n)
+        assert n <= b <= 1.125 * n
+    assert len({shape_bucket(n) for n in range(4097, 8193)}) == 8
+    shapes = []
+    for until in (0.343, 0.344):
+        sim = Simulation(PrintScene(bundled.gcode_path("single_bead"), until_s=until),
+                         RunOptions(spacing_mm=0.0667, progress=False, snapshots=False), Material())
+        e = sim.estimate
+        shapes.append((e["capacity"], e["melt_capacity"], shape_bucket(e["grid_cells"]), e["particles"]))
+    assert shapes[0][:3] == shapes[1][:3] and shapes[0][3] != shapes[1][3]

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from taichi_mex.backend import current, ti
-from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID
+from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID, shape_bucket
 
 #: where lost melt left the grid: its six faces, then positions that are not finite (a blow-up)
 LOST_FACES = ("x_min", "x_max", "y_min", "y_max", "bottom", "top", "not_finite")
@@ -57,17 +57,25 @@ class NeighbourGrid:
         self.dims = tuple(max(1, int(math.ceil((hi[k] - lo[k]) / self.cell))) for k in range(3))
         self.lo = tuple(float(v) for v in lo)
         self.n_cells = self.dims[0] * self.dims[1] * self.dims[2]
+        # the grid's corner and shape are read from fields, and the cells' arrays are a
+        # shape_bucket long (the rest stay empty): another domain of about the same size then
+        # reuses the compiled kernels (core/state.py, SHAPE_BITS)
+        self.lo_f = ti.Vector.field(3, float, shape=())
+        self.lo_f[None] = self.lo
+        self.dims_f = ti.Vector.field(3, ti.i32, shape=())
+        self.dims_f[None] = self.dims
+        self.n_alloc = shape_bucket(self.n_cells)
         cap = state.capacity
         self.cell_of = ti.field(ti.i32, shape=cap)
         self.perm = ti.field(ti.i32, shape=cap)
         # buckets: the cells, then PARKED (kept, outside the grid), then DROPPED
-        self.parked_bucket = self.n_cells
-        self.dropped_bucket = self.n_cells + 1
-        self.count = ti.field(ti.i32, shape=self.n_cells + 2)
-        self.start = ti.field(ti.i32, shape=self.n_cells + 3)
+        self.parked_bucket = self.n_alloc
+        self.dropped_bucket = self.n_alloc + 1
+        self.count = ti.field(ti.i32, shape=self.n_alloc + 2)
+        self.start = ti.field(ti.i32, shape=self.n_alloc + 3)
         self.block = 1024
         # block sums of the scans over the cells and (packed lists) over the particles
-        n_blocks = max(1, int(math.ceil(max(self.n_cells + 2, cap) / self.block)))
+        n_blocks = max(1, int(math.ceil(max(self.n_alloc + 2, cap) / self.block)))
         self.block_sum = ti.field(ti.i32, shape=n_blocks + 1)
         self.max_neighbours = int(max_neighbours)
         self.packed = self.skin > 0.0
@@ -99,12 +107,13 @@ class NeighbourGrid:
     def cell_coords(self, x):
         c = ti.Vector([0, 0, 0])
         for d in ti.static(range(3)):
-            c[d] = ti.cast(ti.floor((x[d] - self.lo[d]) / self.cell), ti.i32)
+            c[d] = ti.cast(ti.floor((x[d] - self.lo_f[None][d]) / self.cell), ti.i32)
         return c
 
     @ti.func
     def inside(self, c):
-        return 0 <= c[0] < self.dims[0] and 0 <= c[1] < self.dims[1] and 0 <= c[2] < self.dims[2]
+        dims = self.dims_f[None]
+        return 0 <= c[0] < dims[0] and 0 <= c[1] < dims[1] and 0 <= c[2] < dims[2]
 
     # The whole rebuild is one generated kernel (see _make_rebuild): each stage below is a
     # ti.func whose loops sit at the kernel's top level, so Taichi parallelises them, and the
@@ -114,7 +123,7 @@ class NeighbourGrid:
         self.lost_melt[None] = 0
         for f in range(NOT_FINITE + 1):
             self.lost_face[f] = 0
-        for c in range(self.n_cells + 2):
+        for c in range(self.n_alloc + 2):
             self.count[c] = 0
         for i in range(n):
             c = self.cell_coords(self.state.x[i])
@@ -124,7 +133,8 @@ class NeighbourGrid:
             ph = self.state.phase[i]
             lin = self.dropped_bucket
             if finite and self.inside(c):
-                lin = (c[0] * self.dims[1] + c[1]) * self.dims[2] + c[2]
+                dims = self.dims_f[None]
+                lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
             elif finite and (ph == NOZZLE or ph == INLET):
                 lin = self.parked_bucket  # the nozzle may travel outside the simulated region
             elif ph <= SOLID:
@@ -142,7 +152,7 @@ class NeighbourGrid:
             for d in ti.static(range(3)):
                 if c[d] < 0:
                     face = 2 * d
-                elif c[d] >= self.dims[d]:
+                elif c[d] >= self.dims_f[None][d]:
                     face = 2 * d + 1
         return face
 
@@ -171,8 +181,8 @@ class NeighbourGrid:
 
     @ti.func
     def _scan(self):
-        self._exclusive_scan(self.count, self.start, self.n_cells + 2)
-        for c in range(self.n_cells + 2):
+        self._exclusive_scan(self.count, self.start, self.n_alloc + 2)
+        for c in range(self.n_alloc + 2):
             self.count[c] = 0  # reused as the fill cursor by the scatter
 
     @ti.func
@@ -373,14 +383,15 @@ class NeighbourGrid:
         """Like for_each_neighbour, but scanning the cells (used to build the lists)."""
         xi = self.state.x[i]
         c = self.cell_coords(xi)
+        dims = self.dims_f[None]
         z0 = ti.max(c[2] - self.reach, 0)
-        z1 = ti.min(c[2] + self.reach, self.dims[2] - 1)
+        z1 = ti.min(c[2] + self.reach, dims[2] - 1)
         for dx in ti.static(range(-self.reach, self.reach + 1)):
             for dy in ti.static(range(-self.reach, self.reach + 1)):
                 cx = c[0] + dx
                 cy = c[1] + dy
-                if 0 <= cx < self.dims[0] and 0 <= cy < self.dims[1] and z0 <= z1:
-                    col = (cx * self.dims[1] + cy) * self.dims[2]
+                if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
+                    col = (cx * dims[1] + cy) * dims[2]
                     for j in range(self.start[col + z0], self.start[col + z1 + 1]):
                         xij = xi - self.state.x[j]
                         if j != i and xij.norm_sqr() < self.R * self.R:

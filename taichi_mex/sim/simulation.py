@@ -19,7 +19,7 @@ import numpy as np
 from taichi_mex import backend
 from taichi_mex.options import RESOLUTION_PRESETS, Material, RunOptions, to_dict
 from taichi_mex.errors import SimulationDiverged, UserInputError
-from taichi_mex.core.state import FLUID, NOZZLE, PHASE_NAMES, PLATE, SOLID
+from taichi_mex.core.state import FLUID, NOZZLE, PHASE_NAMES, PLATE, SOLID, shape_bucket
 
 log = logging.getLogger("taichi_mex")
 
@@ -218,11 +218,11 @@ class Simulation:
                 inlet_extra += len(nozzle_tip_lattice(
                     bore_r, 0.5 * spec.tip_outer_diameter_m, dx, column_slices(H, dx),
                     spec.flank_angle_deg, spec.body_height_m))
-        capacity = int(1.02 * (initial + inflow + inlet_extra)) + 64
+        capacity = shape_bucket(int(1.02 * (initial + inflow + inlet_extra)) + 64)
         # only the inlet turns particles into melt: plate, nozzle and solid never melt, so the
         # rest bounds the melt rows of the coupled solve, whose Krylov vectors are stored by row
         walls = self.plan.initial_count(PLATE, NOZZLE, SOLID)
-        melt_capacity = max(capacity - walls, 64)
+        melt_capacity = shape_bucket(max(capacity - walls, 64))
         ext = self.plan.domain_hi_m - self.plan.domain_lo_m
         n_cells = int(np.prod(np.ceil(2 * ext / H)))  # cells of half the support radius
         fp = 8 if run.precision == "f64" else 4
