@@ -55,13 +55,12 @@ class NeighbourGrid:
         lo = np.asarray(lo_m, dtype=np.float64) - state.origin_m
         hi = np.asarray(hi_m, dtype=np.float64) - state.origin_m
         self.dims = tuple(max(1, int(math.ceil((hi[k] - lo[k]) / self.cell))) for k in range(3))
-        self.lo = tuple(float(v) for v in lo)
         self.n_cells = self.dims[0] * self.dims[1] * self.dims[2]
         # the grid's corner and shape are read from fields, and the cells' arrays are a
         # shape_bucket long (the rest stay empty): another domain of about the same size then
         # reuses the compiled kernels (core/state.py, SHAPE_BITS)
         self.lo_f = ti.Vector.field(3, float, shape=())
-        self.lo_f[None] = self.lo
+        self.lo_f[None] = tuple(float(v) for v in lo)
         self.dims_f = ti.Vector.field(3, ti.i32, shape=())
         self.dims_f[None] = self.dims
         self.n_alloc = shape_bucket(self.n_cells)

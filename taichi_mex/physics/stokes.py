@@ -363,7 +363,8 @@ block-diagonal preconditioner's 464 (three restarts) at 4, the same profile. Dan
 Kaufman & Stewart's test (Math. Comp. 30, 1976: a second pass where the first removed more of
 the vector than it left) asked for it in 23 of the film's 24 iterations and 60 of 61, so it is
 not offered. Measured side by side (2026-12-06, 2 cores, two passes then one): the paper
-block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66 in every run, 273 -> 237, 264 -> 228 and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
+block resumed at t = 1.664 s, 65 steps at 20.58 / 121.66 in every run, 273 -> 237, 264 -> 228
+and 247 -> 221 ms a step (1.12-1.16x) in three pairs,
 270 -> 262 and 258 -> 237 ms (1.03-1.09x) in two more, Gram-Schmidt 1.55 -> 0.78 ms an
 iteration (15 -> 8 % of the kernel time); benchy's window to print time 179 s 93.9 -> 88.8 s
 (1.06x), the same 1,609 steps, 14.1 / 55 -> 13.9 / 52 a step (rounding); the bundled bead at
