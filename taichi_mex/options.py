@@ -697,8 +697,11 @@ class RunOptions:
     max_speed_m_s: float | None = opt(
         None, help="abort if the largest speed exceeds this (m/s): a blow-up, not physics; "
         "None: 20 x the scene's speed scale, at least 1 m/s", check=Either(NONE, Positive()))
-    dt_factor: float = opt(1.0, help="multiplies the stable time step (-); > 1 only to probe "
-                           "stability limits", check=Range(0.0, 10.0, lo_open=True),
+    dt_factor: float = opt(1.0, help="multiplies the time step's limits (-): > 1 trades the "
+                           "accuracy of the particles' motion for fewer steps under the coupled "
+                           "creeping solve (validation/trade, 'The time step as a trade'), and "
+                           "probes stability under the explicit schemes",
+                           check=Range(0.0, 10.0, lo_open=True),
                            flag="--dt-factor", names=("dt_factor",))
     max_steps: int = opt(5_000_000, help="refuse a run whose estimated step count exceeds this "
                          "(days of computing, usually an explicit scheme at a real melt "

@@ -74,6 +74,27 @@ def test_slicer_model_inverts_the_rounded_rectangle():
         analysis.slicer_model(0.1, 0.0)
 
 
+def test_the_sections_reference_outline_is_the_slicers_section(tmp_path):
+    """The dashed outline drawn over a section encloses the bead's own area at height g and
+    spans the slicer's width; a run with a plan gets it on its section picture."""
+    area, g = 0.0814, 0.2
+    width = analysis.slicer_model(area, g)
+    ring = analysis.rounded_rectangle_outline(width, g, 10.0, 0.05, points=2000)
+    u, v = ring[:, 0], ring[:, 1]
+    enclosed = 0.5 * abs(np.dot(u[:-1], v[1:]) - np.dot(u[1:], v[:-1]))
+    assert enclosed == pytest.approx(area, rel=1e-5)
+    assert np.ptp(u) == pytest.approx(width) and (v.min(), v.max()) == pytest.approx((0.05, 0.25))
+    assert analysis.layer_height_mm({"layer_z_mm": [0.2, 0.4], "selected_layers": "2"}) == pytest.approx(0.2)
+    assert analysis.layer_height_mm({}) is None
+
+    W, H = 0.48e-3, 0.2e-3
+    yz = lattice_section(-W / 2, W / 2, 0.0, H)
+    run = write_run(tmp_path, yz, np.zeros(len(yz)))
+    (run / "plan.json").write_text(json.dumps({"layer_z_mm": [0.2], "selected_layers": "1"}))
+    result = analysis.analyse_run(run)
+    assert (run / result["sections"][0]["png"]).stat().st_size > 0
+
+
 def test_single_rectangular_bead(tmp_path):
     W, H = 0.48e-3, 0.2e-3           # 12 x 5 particles
     yz = lattice_section(-W / 2, W / 2, 0.0, H)

@@ -160,6 +160,10 @@ class Case:
     finish: object = None
     #: wall seconds a run may take before it is stopped and reported as such (None: no limit)
     timeout_s: float | None = None
+    #: pictures the pages show, copied from the runs after a full (not --quick) regeneration:
+    #: (run index, file in its folder (a glob; the last match in sorted order), destination
+    #: relative to the repository)
+    figures: list = field(default_factory=list)
 
 
 def strain_ratio(strain):
@@ -263,8 +267,10 @@ BENCHY_4MM_START_S = 175.75
 BENCHY_10MM_START_S = 153.53
 
 
-def window(region, *args):
-    return [*map(str, BENCHY), "--region", region, *map(str, args), *QUIET, "--out", "{out}"]
+def window(region, *args, pictures=False):
+    """Benchy's layer 3 in a window of the bed; ``pictures``: with the run's snapshots."""
+    quiet = ["--quiet"] if pictures else QUIET
+    return [*map(str, BENCHY), "--region", region, *map(str, args), *quiet, "--out", "{out}"]
 
 
 def _deposited(r) -> str:
@@ -444,11 +450,13 @@ CASES = {
         "window 88-92 mm x 88-92 mm at draft, the coupled solve (the split one, measured beside it "
         "until 2026-12-05, now refuses a creeping melt)",
         [("benchy 4 x 4 mm, coupled", window("88:92,88:92", "--creeping-solve", "coupled",
-                                             "--no-surface-traction"))],
+                                             "--no-surface-traction", pictures=True))],
         [("benchy 4 x 4 mm, first second, coupled", window(
             "88:92,88:92", "--until", BENCHY_4MM_START_S + 1, "--creeping-solve", "coupled",
             "--no-surface-traction"))],
-        WINDOW),
+        WINDOW, figures=[(0, f"snapshots/final_{view}.png", f"validation/windows/figures/benchy_4mm_{view}.png")
+                         for view in ("oblique", "top", "section")]
+        + [(0, "sections/section_00.png", "validation/windows/figures/benchy_4mm_analysed_section.png")]),
     "windows_10mm": Case(
         "the same part's 10 x 10 mm window (85-95 mm x 85-95 mm), layer 3, draft, coupled solve",
         [("benchy 10 x 10 mm, coupled", window("85:95,85:95", "--creeping-solve", "coupled",
@@ -497,6 +505,17 @@ CASES = {
          for res, thin in (("draft", False), ("standard", False), ("standard", True), ("fine", False))],
         [("0.1 mm", bead("--resolution", 0.1))],
         COMMON + BEAD + DENSITY),
+    "pictures": Case(
+        "the default run (`python -m taichi_mex --out DIR`: the bundled bead at standard, the "
+        "coupled solve at the melt's real viscosity) with snapshots every 0.05 s: the README's "
+        "pictures",
+        [("default run, standard", ["--snapshot-every", 0.05, "--quiet", "--out", "{out}"])],
+        [("default run at 0.1 mm", ["--resolution", 0.1, "--quiet", "--out", "{out}"])],
+        COMMON + BEAD, folder="strands", tag="pictures",
+        figures=[(0, "snapshots/t0.36*_oblique.png", "examples/figures/default_deposition.png"),
+                 (0, "snapshots/final_oblique.png", "examples/figures/default_oblique.png"),
+                 (0, "snapshots/final_section.png", "examples/figures/default_section.png"),
+                 (0, "sections/section_00.png", "examples/figures/default_analysed_section.png")]),
     "strands_coupled": Case(
         "single beads of six gap / line-width combinations under the 0.4 mm nozzle (60 mm/s, "
         "PLA 1000 Pa s), coupled solve without the free surface's traction: section against "
@@ -563,6 +582,18 @@ CASES = {
                          ("section error vs creeping flow", pct("error"))] + BEAD + DENSITY[:2]
         + COUPLED_SOLVE + [("note", lambda r: (r.get("message") or "").split(". ")[0][:120])],
         read=read_study),
+    "trade_step": Case(
+        "the time step as a trade: strands at twice and three times the print's step "
+        "(--dt-factor; the step bounds the nozzle's and the melt's travel to 0.2 spacings), "
+        "one after the other",
+        [(f"gap {g:.2f}, width {w:.2f}, {res}, dt x{f}",
+          strand(g, w, "--resolution", res, "--dt-factor", f), {"gap_mm": g, "width_mm": w})
+         for g, w, res, factors in ((0.2, 0.45, "standard", (1, 2, 3)), (0.2, 0.6, "standard", (1, 2)),
+                                    (0.15, 0.5, 0.05, (1, 2)))
+         for f in factors],
+        [(f"0.1 mm, dt x{f}", strand(0.2, 0.45, "--resolution", 0.1, "--dt-factor", f),
+          {"gap_mm": 0.2, "width_mm": 0.45}) for f in (1, 2)],
+        COUPLED_STRAND, folder="trade", tag="step"),
     "stability": Case(
         "a 1.5 mm bead around the real-printer baseline (DFSPH, 1000 Pa s unscaled, 60 mm/s, "
         "0.2 mm layer, 8 particles per nozzle diameter): every case finishes or is refused up front",
@@ -606,6 +637,15 @@ CASES = {
         PEER_COLLAPSE_COLUMNS + [
             ("ours: GMRES / inner a step; solves on Weiler's / the form", inner_choice)],
         read=read_bench_collapse, folder="peer", tag="collapse_02"),
+    "blocks_step": Case(
+        "the paper's 3 x 3 block at draft at the print's step and at twice it (--dt-factor 2): "
+        "to print time 0.9 s each, then the whole block at twice the step",
+        [(f"paper block to 0.9 s, dt x{f}", bead(*BLOCK, "--resolution", "draft", "--until", 0.9,
+                                                  "--dt-factor", f)) for f in (1, 2)]
+        + [("paper block, dt x2", bead(*BLOCK, "--resolution", "draft", "--dt-factor", 2))],
+        [("paper block to 0.3 s, 0.15 mm, dt x2", bead(*BLOCK, "--resolution", 0.15, "--until", 0.3,
+                                                        "--dt-factor", 2))],
+        BLOCKS + DENSITY[1:2], folder="blocks", tag="step"),
     "blocks": Case(
         "the seed paper's 3 x 3 block (paper_block_3x3.gcode: 0.4 mm layers, the nozzle one "
         "diameter up) and the same block at a printer's gaps (block_3x3.gcode: 0.2 mm layers), "
@@ -820,6 +860,22 @@ def run_case(name: str, case: Case, out_root: Path, quick: bool,
     return rows, commands
 
 
+def keep_figures(case: Case, out_root: Path) -> list[Path]:
+    """Copy the case's pictures from its run folders to where the pages show them."""
+    kept = []
+    for index, pattern, dest in case.figures:
+        found = sorted((out_root / f"{index:02d}").glob(pattern))
+        if not found:
+            print(f"    no {pattern} in run {index + 1}: {dest} left as it was", flush=True)
+            continue
+        target = ROOT / dest
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(found[-1], target)
+        kept.append(target)
+        print(f"    kept {found[-1].relative_to(out_root)} as {dest}", flush=True)
+    return kept
+
+
 def _last_error(log: str) -> str:
     """The last line of a log that reads like an error ('error: ...', 'ValueError: ...')."""
     lines = [ln.strip() for ln in log.strip().splitlines() if ln.strip()]
@@ -910,6 +966,8 @@ def main(argv=None) -> int:
         out_root = (args.out or Path(tmp)).resolve()
         t0 = time.perf_counter()
         rows, commands = run_case(args.case, case, out_root, args.quick, args.lean)
+        if not (args.quick or args.lean):
+            keep_figures(case, out_root)
         if case.finish:
             rows = case.finish(rows)
         wall = time.perf_counter() - t0

@@ -145,6 +145,34 @@ def slicer_model(area_mm2, height_mm):
     return float(width) if width.ndim == 0 else width
 
 
+def layer_height_mm(plan: dict | None) -> float | None:
+    """The height of the first simulated layer (mm) from a run's plan (``plan.json``): the
+    gap g of the slicer's rounded rectangle; None where the plan has no layers."""
+    if not plan or not plan.get("layer_z_mm"):
+        return None
+    z = [0.0] + list(plan["layer_z_mm"])
+    layers = str(plan.get("selected_layers") or "1")
+    try:
+        first = int(layers.split(",")[0].split("-")[0])
+    except ValueError:
+        first = 1
+    first = min(max(first, 1), len(z) - 1)
+    return z[first] - z[first - 1]
+
+
+def rounded_rectangle_outline(width_mm: float, height_mm: float, centre_u_mm: float,
+                              bottom_mm: float, points: int = 24) -> np.ndarray:
+    """(N, 2) closed outline of the slicer's rounded rectangle: a rectangle W - H wide with
+    half discs of diameter H at its ends (slicer_model's shape), its base at ``bottom_mm``."""
+    r = 0.5 * height_mm
+    half = max(0.5 * width_mm - r, 0.0)
+    zc = bottom_mm + r
+    a = np.linspace(-0.5 * math.pi, 0.5 * math.pi, points)
+    right = np.stack([centre_u_mm + half + r * np.cos(a), zc + r * np.sin(a)], axis=1)
+    left = np.stack([centre_u_mm - half - r * np.cos(a), zc - r * np.sin(a)], axis=1)
+    return np.concatenate([right, left, right[:1]])
+
+
 # --------------------------------------------------------------------------- section
 @dataclass
 class Section:
@@ -701,9 +729,11 @@ def analyse_run(out_dir, frame: int = -1, positions=None, direction=None,
     for old in sections_dir.glob("section_*.png"):
         old.unlink()
     results = []
+    plan_json = out_dir / "plan.json"
+    layer = layer_height_mm(json.loads(plan_json.read_text())) if plan_json.is_file() else None
     for i, sec in enumerate(sections):
         png = sections_dir / f"section_{i:02d}.png"
-        plot_section(sec, png, time_s=data["time_s"])
+        plot_section(sec, png, time_s=data["time_s"], layer_mm=layer)
         d = sec.to_dict()
         d["source"] = "default" if i == 0 else "position"
         d["png"] = str(png.relative_to(out_dir))
@@ -728,9 +758,12 @@ def analyse_run(out_dir, frame: int = -1, positions=None, direction=None,
     return report
 
 
-def plot_section(sec: Section, path, time_s: float | None = None) -> Path:
-    """PNG of a section: beads coloured by id with black outlines, plate grey, voids red.
-    Drawn on a bare Figure (Agg canvas), so no pyplot state or display is involved."""
+def plot_section(sec: Section, path, time_s: float | None = None,
+                 layer_mm: float | None = None) -> Path:
+    """PNG of a section: beads coloured by id with black outlines, plate grey, voids red;
+    with ``layer_mm`` (the gap g), each bead's reference dashed over it: the slicer's rounded
+    rectangle of the bead's own area and height g, centred on the bead, on its base. Drawn
+    on a bare Figure (Agg canvas), so no pyplot state or display is involved."""
     import matplotlib
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
@@ -764,6 +797,15 @@ def plot_section(sec: Section, path, time_s: float | None = None) -> Path:
         ax.contour(uc, vc, (lab == b).astype(float), levels=[0.5], colors="k", linewidths=0.8)
     if sec.void.any():
         ax.contour(uc, vc, sec.void[crop].astype(float), levels=[0.5], colors="darkred", linewidths=0.8)
+    reference = None
+    if layer_mm:
+        for d in sec.beads:
+            if d["substrate"] or d["area_mm2"] <= 0:
+                continue
+            u0, u1, v0, _ = d["bounds_mm"]
+            ring = rounded_rectangle_outline(slicer_model(d["area_mm2"], layer_mm), layer_mm,
+                                             0.5 * (u0 + u1), v0)
+            reference, = ax.plot(ring[:, 0], ring[:, 1], color="k", lw=1.1, ls=(0, (4, 2.5)))
     size = max(5, min(9, int(60 / max(len(ids), 1) ** 0.5)))
     for d in sec.beads:
         text = "sub" if d["substrate"] else str(d["bead_id"])
@@ -782,8 +824,12 @@ def plot_section(sec: Section, path, time_s: float | None = None) -> Path:
                  f"mean W {_mm(t['mean_width_mm'])}, H {_mm(t['mean_height_mm'])}, "
                  f"A {_mm(t['mean_area_mm2'], 'mm²')}; necks side {_mm(t['mean_neck_side_mm'])}, "
                  f"layer {_mm(t['mean_neck_layer_mm'])}", fontsize=9)
-    ax.legend(handles=[Patch(color=(0.9, 0.05, 0.05), label="void"),
-                       Patch(color=(0.75, 0.75, 0.75), label="plate")],
+    handles = [Patch(color=(0.9, 0.05, 0.05), label="void"),
+               Patch(color=(0.75, 0.75, 0.75), label="plate")]
+    if reference is not None:
+        reference.set_label(f"slicer's rounded rectangle\n(same area, H = {layer_mm:.3g} mm)")
+        handles.append(reference)
+    ax.legend(handles=handles,
               loc="upper right", fontsize=7, framealpha=0.8)
     fig.tight_layout()
     path = Path(path)

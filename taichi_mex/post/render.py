@@ -210,13 +210,14 @@ def compose(img: np.ndarray, frame: dict, field: str, clim, caption: str, path=N
 
 def render_section(data: dict, field: str, path: Path, point_m, direction, spacing_m: float,
                    clim, caption: str = "") -> Path | None:
-    """A filled cross-section: the melt within one spacing of the plane through ``point_m``
-    normal to ``direction``, each particle drawn as its own dx x dx cell (nearest on top)."""
+    """A cross-section: the melt within one spacing of the plane through ``point_m`` normal
+    to ``direction``, each particle drawn as a disc of one spacing's diameter (nearest on
+    top), the nozzle's particles grey."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
+    from matplotlib.collections import EllipseCollection
 
     direction = np.asarray(direction, float) / np.linalg.norm(direction)
     lateral = np.cross([0.0, 0.0, 1.0], direction)
@@ -233,18 +234,20 @@ def render_section(data: dict, field: str, path: Path, point_m, direction, spaci
     u = (pos @ lateral) * 1e3
     v = (pos @ vertical) * 1e3
     h = 0.5 * spacing_m * 1e3
-    squares = np.stack([np.stack([u - h, v - h], 1), np.stack([u + h, v - h], 1),
-                        np.stack([u + h, v + h], 1), np.stack([u - h, v + h], 1)], axis=1)
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    order = np.argsort(-np.abs(d[melt]))  # farthest first: the nearest particles lie on top
-    coll = PolyCollection(squares[melt][order],
-                          array=display_values(field, scalars(data, field)[melt])[order],
-                          cmap=_cmap(field), edgecolors="none")
+
+    def discs(sel, **style):
+        return EllipseCollection(2 * h, 2 * h, 0.0, units="xy", offsets=np.stack([u[sel], v[sel]], 1),
+                                 offset_transform=ax.transData, **style)
+
+    order = np.flatnonzero(melt)[np.argsort(-np.abs(d[melt]))]  # farthest first: nearest on top
+    coll = discs(order, array=display_values(field, scalars(data, field)[order]),
+                 cmap=_cmap(field), edgecolors="0.3", linewidths=0.3)
     coll.set_clim(*clim)
     ax.add_collection(coll)
     nozzle = slab & (data["phase"] == NOZZLE_PHASE)
     if nozzle.any():
-        ax.add_collection(PolyCollection(squares[nozzle], facecolors="0.55", edgecolors="none"))
+        ax.add_collection(discs(nozzle, facecolors="0.55", edgecolors="none"))
     lo_u, hi_u = u[melt].min() - 4 * h, u[melt].max() + 4 * h
     top = v[melt].max() + 4 * h
     ax.axhspan(v[melt].min() - 6 * h if vertical[2] < 0.5 else -6 * h, 0.0 if vertical[2] > 0.5 else v[melt].min() - 2 * h,
@@ -287,7 +290,7 @@ def snapshot_set(data: dict, out_dir: Path, tag: str, field: str, spacing_m: flo
     if section_point_m is not None:
         section = render_section(data, field, out_dir / f"{tag}_section.png", section_point_m,
                                  section_direction if section_direction is not None else [1, 0, 0],
-                                 spacing_m, clim, f"cross-section, two spacings thick{when}")
+                                 spacing_m, clim, f"particles within one spacing of the section{when}")
         if section is not None:
             paths.append(section)
     return paths

@@ -12,6 +12,7 @@ import json
 import math
 from pathlib import Path
 
+from taichi_mex.post.analysis import layer_height_mm
 from taichi_mex.post.output import read_json
 
 _CSS = """
@@ -68,23 +69,10 @@ def rounded_rectangle_width_mm(area_mm2: float, gap_mm: float) -> float:
     return area_mm2 / gap_mm + (1.0 - math.pi / 4.0) * gap_mm
 
 
-def _layer_height_mm(plan: dict | None, config: dict | None) -> float | None:
-    if not plan or not plan.get("layer_z_mm"):
-        return None
-    z = [0.0] + list(plan["layer_z_mm"])
-    layers = str(plan.get("selected_layers") or "1")
-    try:
-        first = int(layers.split(",")[0].split("-")[0])
-    except ValueError:
-        first = 1
-    first = min(max(first, 1), len(z) - 1)
-    return z[first] - z[first - 1]
-
-
 def _sections(meso: dict | None, plan, config) -> str:
     if not meso or not meso.get("sections"):
         return "<p>No mesostructure analysis for this run.</p>"
-    gap = _layer_height_mm(plan, config)
+    gap = layer_height_mm(plan)
     parts = []
     for sec in meso["sections"]:
         pos = sec.get("position", {})

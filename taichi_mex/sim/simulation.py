@@ -584,8 +584,8 @@ class Simulation:
     def _likely_cause(self) -> str:
         run = self.run_opts
         if run.dt_factor > 1:
-            return (f"Likely cause: dt_factor = {run.dt_factor:g} takes the time step beyond its "
-                    "stability limit; use dt_factor <= 1.")
+            return (f"Likely cause: dt_factor = {run.dt_factor:g} takes the time step beyond the "
+                    "limits it is measured at; use dt_factor <= 1.")
         if run.scheme == "edac":
             eta = self.material.viscosity_pa_s
             return (f"Likely cause: the explicit EDAC scheme (c_s = {run.edac.sound_speed_m_s} m/s, "
