@@ -450,7 +450,9 @@ CASES = {
         "window 88-92 mm x 88-92 mm at draft, the coupled solve (the split one, measured beside it "
         "until 2026-12-05, now refuses a creeping melt)",
         [("benchy 4 x 4 mm, coupled", window("88:92,88:92", "--creeping-solve", "coupled",
-                                             "--no-surface-traction", pictures=True))],
+                                             "--no-surface-traction", pictures=True)),
+         ("benchy 4 x 4 mm, coupled, dt x2", window("88:92,88:92", "--creeping-solve", "coupled",
+                                                    "--no-surface-traction", "--dt-factor", 2))],
         [("benchy 4 x 4 mm, first second, coupled", window(
             "88:92,88:92", "--until", BENCHY_4MM_START_S + 1, "--creeping-solve", "coupled",
             "--no-surface-traction"))],
