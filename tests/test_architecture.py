@@ -202,3 +202,22 @@ def test_old_module_paths_still_import_and_say_where_they_moved():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "True True False", out.stderr
     assert "taichi_mex.analysis moved to taichi_mex.post.analysis" in out.stderr
+
+
+def test_every_validation_case_has_its_table_and_its_pictures_are_shown():
+    """Each case of validation/regenerate.py rewrites a table its README marks, and each
+    picture a case keeps exists and is shown by some page."""
+    import importlib.util
+
+    root = PACKAGE.parent
+    spec = importlib.util.spec_from_file_location("regenerate", root / "validation" / "regenerate.py")
+    regenerate = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(regenerate)
+    pages = "\n".join(p.read_text() for p in [root / "README.md", *root.glob("validation/*/README.md")])
+    for name, case in regenerate.CASES.items():
+        text = (root / "validation" / (case.folder or name) / "README.md").read_text()
+        tag = f":{case.tag}" if case.tag else ""
+        assert f"<!-- table:begin{tag} -->" in text and f"<!-- table:end{tag} -->" in text, name
+        for _, _, dest in case.figures:
+            assert (root / dest).is_file(), (name, dest)
+            assert Path(dest).name in pages, (name, dest)

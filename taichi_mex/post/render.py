@@ -1,7 +1,7 @@
 """Pictures of a run, off-screen: side, top and oblique views of the melt drawn at its real
-particle size, with the build plate and the nozzle for context (pyvista); a filled
-cross-section (matplotlib); and an animation of the saved frames (imageio: MP4 with its
-packaged ffmpeg, a GIF where no encoder is available).
+particle size, with the build plate and the nozzle for context (pyvista); the particles near
+a cross-section as discs (matplotlib); and an animation of the saved frames (imageio: MP4
+with its packaged ffmpeg, a GIF where no encoder is available).
 
 Colour ranges are per field and say what they show: density spans rho0 +-5 % (the
 free-surface particles' summation density reads low by construction and saturates; a
@@ -268,7 +268,7 @@ def render_section(data: dict, field: str, path: Path, point_m, direction, spaci
 def snapshot_set(data: dict, out_dir: Path, tag: str, field: str, spacing_m: float,
                  section_point_m=None, section_direction=None, reference: dict | None = None,
                  time_s: float | None = None) -> list[Path]:
-    """Side, top and oblique views and a filled cross-section of one frame, coloured by
+    """Side, top and oblique views and the section's particles of one frame, coloured by
     ``field``; returns the paths."""
     if field not in data:
         raise KeyError(f"field {field!r} not in frame (have {', '.join(sorted(data))})")
