@@ -862,9 +862,8 @@ def run_case(name: str, case: Case, out_root: Path, quick: bool,
     return rows, commands
 
 
-def keep_figures(case: Case, out_root: Path) -> list[Path]:
+def keep_figures(case: Case, out_root: Path) -> None:
     """Copy the case's pictures from its run folders to where the pages show them."""
-    kept = []
     for index, pattern, dest in case.figures:
         found = sorted((out_root / f"{index:02d}").glob(pattern))
         if not found:
@@ -873,9 +872,7 @@ def keep_figures(case: Case, out_root: Path) -> list[Path]:
         target = ROOT / dest
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(found[-1], target)
-        kept.append(target)
         print(f"    kept {found[-1].relative_to(out_root)} as {dest}", flush=True)
-    return kept
 
 
 def _last_error(log: str) -> str:

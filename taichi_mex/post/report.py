@@ -12,7 +12,7 @@ import json
 import math
 from pathlib import Path
 
-from taichi_mex.post.analysis import layer_height_mm
+from taichi_mex.post.analysis import layer_height_mm, slicer_model
 from taichi_mex.post.output import read_json
 
 _CSS = """
@@ -63,12 +63,6 @@ def _verdict(ok: bool, text: str) -> str:
     return f'<span class="{"ok" if ok else "bad"}">{html.escape(text)}</span>'
 
 
-def rounded_rectangle_width_mm(area_mm2: float, gap_mm: float) -> float:
-    """The slicer's bead width for a cross-section A at layer height g: W = A/g + (1 - pi/4) g
-    (a rectangle with semicircular sides; Comminal et al., Addit. Manuf. 20, 2018)."""
-    return area_mm2 / gap_mm + (1.0 - math.pi / 4.0) * gap_mm
-
-
 def _sections(meso: dict | None, plan, config) -> str:
     if not meso or not meso.get("sections"):
         return "<p>No mesostructure analysis for this run.</p>"
@@ -78,7 +72,7 @@ def _sections(meso: dict | None, plan, config) -> str:
         pos = sec.get("position", {})
         rows = []
         for b in sec.get("beads", []):
-            law = rounded_rectangle_width_mm(b["area_mm2"], gap) if gap else None
+            law = slicer_model(b["area_mm2"], gap) if gap else None
             rows.append([str(b.get("bead_id")) + (" (substrate)" if b.get("substrate") else ""),
                          b.get("width_mm"), law,
                          None if not law else 100 * (b["width_mm"] / law - 1),
@@ -96,7 +90,7 @@ def _sections(meso: dict | None, plan, config) -> str:
     mid = meso.get("along_middle")
     if mid:
         c = mid["coordinates_mm"]
-        law = rounded_rectangle_width_mm(mid["mean_area_mm2"], gap) if gap else None
+        law = slicer_model(mid["mean_area_mm2"], gap) if gap else None
         parts.append(f"<h3>Over the middle: {mid['sections']} sections, {mid['axis']} = "
                      f"{_num(c[0])}-{_num(c[-1])} mm</h3>")
         parts.append(_table([
