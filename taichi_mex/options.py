@@ -590,10 +590,14 @@ class DFSPHOptions:
         check=Range(0.0, 100.0))
     stokes_density_source: str = opt(
         "summation", help="coupled solve: what the continuity rows remove besides divergence: "
-        "'summation', the compression the kernel sum shows, min(1 - rho / rho0, 0) / dt; "
-        "'none', nothing (divergence-free steps). The kernel sum also reads a stretched "
-        "arrangement as compressed (validation/extension: +6 % at a Hencky strain of 0.36)",
-        check=OneOf("summation", "none"), flag="--density-source")
+        "'summation', the compression the kernel sum shows, min(1 - rho / rho0, 0) / dt "
+        "(Bender & Koschier 2017); 'two-way', the kernel sum's error both ways, "
+        "(1 - rho / rho0) / dt, on particles whose kernel is full (interior by Marrone et al.'s "
+        "2010 free-surface test; Shao & Lo's 2003 density-invariant source), compression only "
+        "on the surface and the layer under it; 'none', nothing (divergence-free steps). The "
+        "kernel sum also reads a stretched arrangement as compressed (validation/extension: "
+        "+6 % at a Hencky strain of 0.36)",
+        check=OneOf("summation", "two-way", "none"), flag="--density-source")
     stokes_compressible: bool = opt(
         True, help="coupled solve: the melt's volume changes by dp / K (material.bulk_modulus_pa) "
         "in a step; off: incompressible rows, which a fragment of one or two particles at the "

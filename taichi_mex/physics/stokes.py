@@ -84,16 +84,21 @@ cycle, the draft bead took 47 GMRES / 248 inner iterations a step, with the earl
 193: nine-section width 0.465 / 0.467 mm, height 0.198 mm in both (2026-12-03). The
 iteration counts quoted below for the bore, film and extension were measured before that.
 
-Continuity source s: the compression the step removes, min(1 - rho_i / rho0, 0) / dt
-(Bender & Koschier 2017's clamp); elsewhere the velocity is divergence free. The constraint is
-an equality, so melt takes tension as freely as compression. The source is not corrected for
-expansion: at a free surface the kernel sum is short of rho0 for lack of neighbours, and a
-surface test that decides which particles those are is a threshold; with it, particles the
-test missed on one side of the squeeze film were pulled in at (1 - rho / rho0) / dt and drove
-a swirl of 0.6 V in a mirror-symmetric film. The kernel sum also reads melt stretched at
-constant volume as compressed (+6 % at a Hencky strain of 0.36, validation/extension), so this
-source dilates a stretched filament; ``density_source="none"`` keeps the steps divergence-free
-instead.
+Continuity source s: what the step removes of the kernel sum's error besides divergence.
+``density_source="summation"``: compression only, min(1 - rho_i / rho0, 0) / dt (Bender &
+Koschier 2017's clamp), because at a free surface the sum is short of rho0 for lack of
+neighbours, not for expansion. Expansion inside the melt is then never corrected: a step's
+explicit drift leaves it, and it grows with the step (the bundled bead's interior sums 0.41 %
+short on average at the print's step, 0.93 % at twice it; a thinning collapse 5.1 %).
+``"two-way"``: (1 - rho_i / rho0) / dt on particles whose kernel is full, the clamp on the rest.
+This is Shao & Lo's (2003) density-invariant source with its free-surface particles left to
+the traction-free condition; which particles have a full kernel is Marrone et al.'s (2010)
+test (physics/surface.py), flags 0 (interior) against 1 (surface) and 2 (the layer under it),
+refreshed at each solve. The layer under the surface keeps the clamp: its kernel reaches past
+the surface. The constraint is an equality either way, so melt takes tension as freely as
+compression. The kernel sum also reads melt stretched at constant volume as compressed (+6 %
+at a Hencky strain of 0.36, validation/extension), so either source dilates a stretched
+filament; ``"none"`` keeps the steps divergence-free instead.
 
 Free surface: the pressure's symmetric sum gives it zero ambient pressure; Weiler's viscous
 sum alone gives it no viscous flux, which is not zero traction. With ``surface_traction`` the
@@ -494,7 +499,11 @@ class CoupledStokes:
         if self.isotropic:
             self.morris_ratio = (1.0 / morris_lattice_factor(kernel, spacing_m, volume_m3)) / viscous.d
         self.hourglass = float(opts.stokes_zero_energy_control)
-        self.summation_source = opts.stokes_density_source == "summation"
+        self.summation_source = opts.stokes_density_source in ("summation", "two-way")
+        # the source both ways where the kernel is full (see "Continuity source"): Marrone's
+        # free-surface flags, from the detector the simulation attaches (attach_surface)
+        self.two_way = opts.stokes_density_source == "two-way"
+        self.surface = None
         # 1 / c^2 = rho0 / K (s^2/m^2): see "Compressibility"; a field, so that a
         # quasi-static solve can leave it out without a second compilation
         self.inv_c2 = (self.rho0 / float(bulk_modulus_pa)
@@ -1409,7 +1418,13 @@ class CoupledStokes:
                 # already holds: counted twice, the pressure of a compression no flow could
                 # relieve grew by c^2 times it every step
                 rho = ti.cast(self.state.rho[i], ti.f64) / self.rho0
-                s += ti.min((1.0 + self.c2inv[None] * kn - rho) / dt, 0.0)
+                error = (1.0 + self.c2inv[None] * kn - rho) / dt
+                if ti.static(self.two_way):
+                    # an interior particle's kernel is full: its sum short of rho0 is
+                    # expansion, not a missing neighbour
+                    s += error if self.surface.flag[i] == 0 else ti.min(error, 0.0)
+                else:
+                    s += ti.min(error, 0.0)
             self.rhs[i] = ti.Vector([mom[0], mom[1], mom[2], self.dx * (s + acc[12])])
         # the Schur approximation needs every melt row's B^-1: a loop of its own
         ti.loop_config(serialize=S > 1)
@@ -1672,6 +1687,11 @@ class CoupledStokes:
         return 1 if n < self.serial_rows else 0
 
     # ------------------------------------------------------------------ public
+    def attach_surface(self, surface) -> None:
+        """The free-surface detector (physics/surface.py) whose flags tell the two-way source
+        which particles have a full kernel; each solve refreshes them."""
+        self.surface = surface
+
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
               warm_pressure: bool = True, compressible: bool = True,
               extrapolate: bool = True) -> StokesResult:
@@ -1685,6 +1705,11 @@ class CoupledStokes:
             raise RuntimeError(f"{n} melt rows exceed the {self.rows_cap} the coupled solve was "
                                "sized for: only the inlet makes melt, and the plan counts it")
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
+        if self.two_way:
+            if self.surface is None:
+                raise RuntimeError("the two-way density source reads the free-surface flags: "
+                                   "attach_surface() before the first solve")
+            self.surface.update()
         inner = 0
         S = self.serial(n)
         self._setup(n, self.state.n, float(dt), *map(float, gravity_m_s2), *self.drive, kappa, S)

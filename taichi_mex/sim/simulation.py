@@ -460,6 +460,8 @@ class Simulation:
                                           self.plan.speed_scale_m_s, self.plan.max_dt_s,
                                           material=self.material,
                                           melt_capacity=self.estimate["melt_capacity"])
+        if getattr(self.solver, "stokes", None) is not None:
+            self.solver.stokes.attach_surface(self.surface)
         if self.plan.drive is not None:
             if getattr(self.solver, "stokes", None) is None:
                 raise UserInputError(f"The {self.plan.name} scene drives its melt by a body force "
