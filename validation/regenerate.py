@@ -210,6 +210,9 @@ def strand_run(gap_mm, width_mm, resolution):
 STRANDS = [(0.2, 0.45, "draft"), (0.2, 0.45, "standard"), (0.1, 0.4, 0.05),
            (0.1, 0.6, 0.05), (0.15, 0.5, "draft"), (0.2, 0.6, "draft"), (0.2, 0.7, "draft")]
 
+#: (gap mm, line width mm, resolution) of the density-source comparison
+SOURCE_STRANDS = [(0.2, 0.45, "standard"), (0.2, 0.6, "standard"), (0.15, 0.5, 0.05),
+                  (0.1, 0.4, 0.05), (0.1, 0.6, 0.05), (0.2, 0.7, "draft")]
 
 #: the coupled solve's cost and health, per step
 COUPLED_SOLVE = [
@@ -424,6 +427,18 @@ CASES = {
                                          "--creeping-solve", "coupled"))],
         COMMON + HUPPERT + COUPLED_SOLVE,
         folder="collapse", tag="coupled"),
+    "collapse_source": Case(
+        "the coupled collapse with the continuity source one way (compression only) and two ways "
+        "on interior particles (--density-source two-way): a thinning current's interior sums",
+        [(f"{dx} mm, {eta} Pa s, {t} s, {source}", scene(
+            "collapse", *CYLINDER, "--viscosity", eta, "--spacing-mm", dx, "--until", t,
+            "--creeping-solve", "coupled", "--density-source", source))
+         for dx, eta, t in (*COUPLED_COLLAPSES, (0.3, 10, 30)) for source in ("summation", "two-way")],
+        [(f"0.8 mm, 6 s, {source}", scene("collapse", *COLLAPSE, "--spacing-mm", 0.8, "--until", 6,
+                                           "--creeping-solve", "coupled", "--density-source", source))
+         for source in ("summation", "two-way")],
+        COMMON + HUPPERT + DENSITY[1:2] + COUPLED_SOLVE,
+        folder="collapse", tag="source"),
     "collapse_coupled_fine": Case(
         "the coupled collapse at finer spacings (10 Pa s, 30 s), where the split solve blows up",
         [(f"{dx} mm, 10 Pa s, 30 s, coupled", scene(
@@ -541,6 +556,18 @@ CASES = {
           {"gap_mm": 0.2, "width_mm": 0.45}) for f in (1, 2)],
         COUPLED_STRAND,
         folder="strands", tag="step"),
+    "strands_source": Case(
+        "the continuity source one way (compression only, --density-source summation) and two "
+        "ways on interior particles (--density-source two-way), at the print's step and twice "
+        "it, on strands across gaps and line widths: does correcting the interior's expansion "
+        "change the section, and what does it cost?",
+        [(f"gap {g:.2f}, width {w:.2f}, {res}, {source}, dt x{f}",
+          strand(g, w, "--resolution", res, "--density-source", source, "--dt-factor", f),
+          {"gap_mm": g, "width_mm": w})
+         for g, w, res in SOURCE_STRANDS for f in (1, 2) for source in ("summation", "two-way")],
+        [(f"0.1 mm, {source}", strand(0.2, 0.45, "--resolution", 0.1, "--density-source", source),
+          {"gap_mm": 0.2, "width_mm": 0.45}) for source in ("summation", "two-way")],
+        COUPLED_STRAND, folder="strands", tag="source"),
     "strands_viscosity": Case(
         "coupled strands at the real viscosity against the creeping-flow scaling 'auto' gave "
         "them until 2026-12-06 (x 0.0127 for the bundled bead, x 0.0143 for the other lines): "
