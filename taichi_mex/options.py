@@ -589,7 +589,7 @@ class DFSPHOptions:
         "does not see (-); 0 leaves particle-scale zigzags undamped (physics/stokes.py)",
         check=Range(0.0, 100.0))
     stokes_density_source: str = opt(
-        "summation", help="coupled solve: what the continuity rows remove besides divergence: "
+        "two-way", help="coupled solve: what the continuity rows remove besides divergence: "
         "'summation', the compression the kernel sum shows, min(1 - rho / rho0, 0) / dt "
         "(Bender & Koschier 2017); 'two-way', the kernel sum's error both ways, "
         "(1 - rho / rho0) / dt, on particles whose kernel is full (interior by Marrone et al.'s "
