@@ -85,17 +85,21 @@ cycle, the draft bead took 47 GMRES / 248 inner iterations a step, with the earl
 iteration counts quoted below for the bore, film and extension were measured before that.
 
 Continuity source s: what the step removes of the kernel sum's error besides divergence.
-``density_source="summation"``: compression only, min(1 - rho_i / rho0, 0) / dt (Bender &
-Koschier 2017's clamp), because at a free surface the sum is short of rho0 for lack of
-neighbours, not for expansion. Expansion inside the melt is then never corrected: a step's
-explicit drift leaves it, and it grows with the step (the bundled bead's interior sums 0.41 %
-short on average at the print's step, 0.93 % at twice it; a thinning collapse 5.1 %).
-``"two-way"``: (1 - rho_i / rho0) / dt on particles whose kernel is full, the clamp on the rest.
-This is Shao & Lo's (2003) density-invariant source with its free-surface particles left to
-the traction-free condition; which particles have a full kernel is Marrone et al.'s (2010)
-test (physics/surface.py), flags 0 (interior) against 1 (surface) and 2 (the layer under it),
-refreshed at each solve. The layer under the surface keeps the clamp: its kernel reaches past
-the surface. The constraint is an equality either way, so melt takes tension as freely as
+``density_source="two-way"`` (the default): (1 - rho_i / rho0) / dt on particles whose kernel
+is full; on the rest, where the sum is short of rho0 for lack of neighbours rather than for
+expansion, compression only, min(1 - rho_i / rho0, 0) / dt (Bender & Koschier 2017's clamp).
+This is Shao & Lo's (Adv. Water Resour. 26, 2003) density-invariant source, its free-surface
+particles left to the traction-free condition. Which kernels are full is Marrone et al.'s
+(J. Comput. Phys. 229, 2010) test (physics/surface.py): flag 0 (interior) against 1 (surface)
+and 2 (the layer under it, whose kernel reaches past the surface), refreshed at each solve.
+``"summation"``: the clamp everywhere, which never corrects expansion inside the melt, so
+what a step's explicit drift leaves expanded stays and grows with the step. Side by side
+(validation/strands and validation/collapse, "The continuity source both ways", 2026-12-07):
+the strands' interior kernel sums 0.01-0.05 % off on average against 0.39-1.13 % (0.03-0.14 %
+against 0.68-2.04 % at twice the step); eleven of twelve strands narrower, by up to 11 points
+of the rounded rectangle (16 at twice the step), at the same iterations a step; the 0.3 mm
+collapse's interior 0.14 % against 1.30 % off, Huppert's coefficient 1.003 against 1.009, in
+17 % more steps. The constraint is an equality either way, so melt takes tension as freely as
 compression. The kernel sum also reads melt stretched at constant volume as compressed (+6 %
 at a Hencky strain of 0.36, validation/extension), so either source dilates a stretched
 filament; ``"none"`` keeps the steps divergence-free instead.
