@@ -295,7 +295,10 @@ starting residual 0.056 against 0.084, density error 0.0011 against 0.0029, medi
 13.1 / 57), but it carries forward whatever error the stop leaves in modes it reads weakly,
 where v_n alone keeps it: over benchy's whole window the extrapolated start had more melt
 flung faster than 4x the nozzle, not fewer iterations (validation/windows, 2026-12-04). Not
-the default, then.
+the default, then. Those figures were the one-way density source's; with the two-way source
+(see "Continuity source") test_idle's print takes 9.6 / 23.4 extrapolated against 9.3 / 23.1
+from v_n (one way: 9.8 / 24.2 against 10.4 / 29.9; 2026-12-07): the step's expansion, which
+one way left for the next step to meet, no longer makes v_n a poor start.
 
 Restart: GMRES keeps stokes_restart Krylov vectors (200 by default, stored by melt row) and
 starts again from its iterate when they run out; a restart throws the space away, and a solve
