@@ -125,6 +125,8 @@ BEAD = [("material area mm^2 (commanded %.4f)" % BEAD_AREA_MM2,
         ("section H mm (gap 0.2)", ratio_to("bead_height_mm", lambda r: BEAD_GAP_MM)),
         ("p99 W / H mm", lambda r: f"{r['bead_width_p99_mm']:.3f} / {r['bead_height_p99_mm']:.3f}"
          if r.get("bead_width_p99_mm") else "")]
+
+
 def _interior_density(r: dict) -> str:
     """|rho / rho0 - 1| over the melt whose kernel is full, with how many particles that is;
     a melt with none (a current one or two particles thick) is read whole, surface and all,
@@ -141,7 +143,7 @@ def _interior_density(r: dict) -> str:
 DENSITY = [("compression end max / worst step", lambda r: f"{100 * r['compression_error_max']:.2f} % / "
             f"{100 * r.get('compression_error_max_run', float('nan')):.2f} %"
             if r.get("compression_error_max") is not None else ""),
-           ("interior density mean / max", lambda r: _interior_density(r)),
+           ("interior density mean / max", _interior_density),
            ("paired melt", pct("paired_fraction")), ("section voids", pct("void_fraction", 0))]
 CG = [("pressure / divergence / viscosity CG per step",
        lambda r: "/".join(f" {r.get(k, 0) or 0:.1f} " for k in (
