@@ -91,7 +91,8 @@ expansion, compression only, min(1 - rho_i / rho0, 0) / dt (Bender & Koschier 20
 This is Shao & Lo's (Adv. Water Resour. 26, 2003) density-invariant source, its free-surface
 particles left to the traction-free condition. Which kernels are full is Marrone et al.'s
 (J. Comput. Phys. 229, 2010) test (physics/surface.py): flag 0 (interior) against 1 (surface)
-and 2 (the layer under it, whose kernel reaches past the surface), refreshed at each solve.
+and 2 (the layer under it, whose kernel reaches past the surface), refreshed with the
+neighbour lists (each step of a print).
 ``"summation"``: the clamp everywhere, which never corrects expansion inside the melt, so
 what a step's explicit drift leaves expanded stays and grows with the step. Side by side
 (validation/strands and validation/collapse, "The continuity source both ways", 2026-12-07):
@@ -1696,7 +1697,8 @@ class CoupledStokes:
     # ------------------------------------------------------------------ public
     def attach_surface(self, surface) -> None:
         """The free-surface detector (physics/surface.py) whose flags tell the two-way source
-        which particles have a full kernel; each solve refreshes them."""
+        which particles have a full kernel; a solve refreshes them once per rebuild of the
+        neighbour lists (SurfaceDetector.current), the heat's areas sharing that update."""
         self.surface = surface
 
     def solve(self, dt: float, kappa, gravity_m_s2=(0.0, 0.0, 0.0),
@@ -1716,7 +1718,7 @@ class CoupledStokes:
             if self.surface is None:
                 raise RuntimeError("the two-way density source reads the free-surface flags: "
                                    "attach_surface() before the first solve")
-            self.surface.update()
+            self.surface.current()
         inner = 0
         S = self.serial(n)
         self._setup(n, self.state.n, float(dt), *map(float, gravity_m_s2), *self.drive, kappa, S)

@@ -42,6 +42,7 @@ class SurfaceDetector:
         self.shepard = ti.field(float, shape=st.capacity)
         self.grad_norm = ti.field(float, shape=st.capacity)
         self._calibration = None
+        self._updated_at = None  # grid.rebuilds when update() last ran
 
     def attach(self, grid, kernel):
         self.grid = grid
@@ -52,6 +53,14 @@ class SurfaceDetector:
         self._lambda(n)
         self._scan(n)
         self._near(n)
+        self._updated_at = self.grid.rebuilds
+
+    def current(self) -> None:
+        """update() unless it already ran since the neighbour lists were last rebuilt: within
+        a step the heat's surface areas and the coupled solve's density source read the same
+        flags, at the positions the lists were built from."""
+        if self._updated_at != self.grid.rebuilds:
+            self.update()
 
     @ti.func
     def _L_task(self, i, j, xij, acc: ti.template()):

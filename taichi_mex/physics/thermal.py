@@ -192,13 +192,18 @@ class Thermal:
     def step(self, dt: float) -> None:
         """Advance temperatures by dt; call where neighbour lists and densities are current."""
         if self.losses and self._areas_at != self.grid.rebuilds:
-            self.update_areas()
+            self.surface.current()
+            self._areas()
         self._d_max = float(self._advance(self.state.n, dt, float(self.clock()) + dt))
 
     def update_areas(self) -> None:
         """Free-surface area per particle (the surface moves only as fast as the lists are
         rebuilt, so areas are refreshed with them)."""
         self.surface.update()
+        self._areas()
+
+    def _areas(self) -> None:
+        """The areas from the surface's latest update."""
         self.surface.areas(self.area, self.method)
         self._areas_at = self.grid.rebuilds
 
