@@ -282,3 +282,24 @@ def test_melt_over_the_nozzles_tip_face_is_counted():
     bare.build()
     bare.inlet.advance(t)
     assert bare.inlet.melt_over_face() == 0
+
+
+def test_the_walls_speed_is_their_fastest_particles():
+    """The step's wall speed (the CFL's, and the estimate's) is the fastest nozzle or bore
+    column particle's: the column slides down the bore while the tip moves across, so the
+    speeds add as vectors (|v| + w made the bundled bead's steps 1.4x shorter than that)."""
+    from taichi_mex.core.state import INLET, NOZZLE
+
+    scene = PrintScene(bundled.gcode_path("single_bead"), until_s=0.32)
+    sim = Simulation(scene, RunOptions(**PAPER), PAPER_MELT)
+    sim.build()
+    t = 0.5 * (scene.selection.t_start_s + scene.selection.t_end_s)  # mid-bead: moving, extruding
+    sim.inlet.advance(t)
+    _, vel, w, _ = sim.inlet.nozzle_state(t)
+    assert np.linalg.norm(vel) > 1e-3 and w > 1e-3
+    phase = sim.state.phase.to_numpy()[: sim.state.n]
+    v = np.linalg.norm(sim.state.v.to_numpy()[: sim.state.n], axis=1)
+    fastest = v[(phase == NOZZLE) | (phase == INLET)].max()
+    assert sim.inlet.speed == pytest.approx(fastest, rel=1e-5)  # what boundary_speed() reads
+    assert sim.inlet.speed < np.linalg.norm(vel) + w - 0.1 * w
+    assert float(sim.plan.wall_speed_m_s(np.array([t]))[0]) == pytest.approx(fastest, rel=1e-5)

@@ -240,16 +240,18 @@ class PrintScene:
         return windows
 
     def _wall_speed(self, dx: float):
-        """The walls' fastest speed at given times: the nozzle's, plus the bore column's
-        sliding speed, flow over the column's lattice area, as the inlet moves it
-        (sim/inlet.py)."""
+        """The walls' fastest speed at given times, as the inlet moves them (sim/inlet.py):
+        the nozzle's velocity, or that of the bore column's particles, which slide down the
+        bore at the flow over the column's lattice area on top of it."""
         traj = self.trajectory
         area_m2 = len(disc_lattice(0.5e-3 * traj.printer.nozzle_diameter_mm, dx)) * dx * dx
 
         def speed(times_s):
             s = traj.sample(np.asarray(times_s, dtype=np.float64), clip=True)
-            return (np.linalg.norm(s.velocity_mm_s, axis=1) * 1e-3
-                    + s.flow_mm3_s * 1e-9 / area_m2)
+            v = np.asarray(s.velocity_mm_s, dtype=np.float64) * 1e-3
+            column = v.copy()
+            column[:, 2] -= np.asarray(s.flow_mm3_s, dtype=np.float64) * 1e-9 / area_m2
+            return np.maximum(np.linalg.norm(v, axis=1), np.linalg.norm(column, axis=1))
 
         return speed
 
