@@ -515,11 +515,12 @@ class DFSPHOptions:
     stokes_initial_guess: str = opt(
         "previous", help="coupled solve: where GMRES starts, 'previous' (the melt's present "
         "velocity v_n) or 'extrapolated' (each melt particle's from its last two steps, "
-        "v_n + (dt / dt_n-1)(v_n - v_n-1)). Both stop at the same tolerances; the extrapolated "
-        "start saves iterations on a smooth print with the one-way density source (test_idle's "
-        "9.8 / 24 against 10.4 / 30 GMRES / inner a step), none with the default two-way one "
-        "(9.6 / 23.4 against 9.3 / 23.1), and carries forward the error the stop reads weakly "
-        "(benchy's window flung more melt; physics/stokes.py, \"Initial guess\")",
+        "v_n + (dt / dt_n-1)(v_n - v_n-1)). Both stop at the same tolerances; what the extrapolated "
+        "start saves changes sign with the step and the density source (test_idle's print, "
+        "2026-12-07: 10.2 / 26.1 against 10.1 / 29.2 GMRES / inner a step with the default "
+        "two-way source, 9.0 / 26.0 against 8.4 / 23.4 one way), and it carries forward the "
+        "error the stop reads weakly (benchy's window flung more melt; physics/stokes.py, "
+        "\"Initial guess\")",
         check=OneOf("previous", "extrapolated"))
     stokes_max_iterations: int = opt(20000, help="coupled solve: an unconverged step is halved "
                                      "after this many GMRES iterations",

@@ -92,20 +92,19 @@ def test_a_loose_inner_solve_converges_where_the_nozzle_leaves_melt_at_rest(tmp_
     assert not any(s["unconverged_solves_redone"].values())
 
 
-def test_an_extrapolated_start_saves_iterations_and_keeps_the_bead(tmp_path):
+def test_an_extrapolated_start_keeps_the_bead_across_an_idle_span(tmp_path):
     """The coupled solve may start from each particle's velocity extrapolated from its last
     two steps (physics/stokes.py, "Initial guess"); both starts stop at the same tolerances,
-    so the bead is the same within a spacing, at fewer iterations on this smooth print. It
-    crosses an idle span, after which the history is void (the melt was set at rest). The
-    saving is the one-way source's (9.8 / 24 against 10.4 / 30 GMRES / inner a step): with
-    the default two-way source, which removes the expansion each step leaves, the present
-    velocity is as good a start (9.6 / 23.4 against 9.3 / 23.1, 2026-12-07)."""
-    one_way = {"run.dfsph.stokes_density_source": "summation"}
-    a = _run(tmp_path, "extrapolated", **{"run.dfsph.stokes_initial_guess": "extrapolated"},
-             **one_way)
-    b = _run(tmp_path, "previous", **one_way)
+    so the bead is the same within a spacing. The print crosses an idle span, after which the
+    history is void (the melt was set at rest) and the run goes on without a halving. What it
+    saves is not asserted: on this print it has gone both ways with the step and the density
+    source (2026-12-07, the walls' speed as their fastest particle's: two ways 10.2 / 26.1
+    against 10.1 / 29.2 GMRES / inner iterations a step from v_n, one way 9.0 / 26.0 against
+    8.4 / 23.4; the day before, at steps 20 % shorter, one way saved 5 / 19 %)."""
+    a = _run(tmp_path, "extrapolated", **{"run.dfsph.stokes_initial_guess": "extrapolated"})
+    b = _run(tmp_path, "previous")
     assert a["skipped_time_s"] > 0.07 and a["particles_lost"] == b["particles_lost"] == 0
-    assert a["stokes_inner_iterations_per_step"] < 0.9 * b["stokes_inner_iterations_per_step"]
-    assert a["stokes_iterations_per_step"] < b["stokes_iterations_per_step"]
+    assert a["time_step_halvings"] == b["time_step_halvings"] == 0
+    assert not any(a["unconverged_solves_redone"].values())
     for key in ("bead_width_p99_mm", "bead_height_p99_mm"):
         assert abs(a[key] - b[key]) < 0.1

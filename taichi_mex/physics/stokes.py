@@ -299,7 +299,10 @@ flung faster than 4x the nozzle, not fewer iterations (validation/windows, 2026-
 the default, then. Those figures were the one-way density source's; with the two-way source
 (see "Continuity source") test_idle's print takes 9.6 / 23.4 extrapolated against 9.3 / 23.1
 from v_n (one way: 9.8 / 24.2 against 10.4 / 29.9; 2026-12-07): the step's expansion, which
-one way left for the next step to meet, no longer makes v_n a poor start.
+one way left for the next step to meet, no longer makes v_n a poor start. With the walls'
+speed counted as their fastest particle's (steps 20 % longer, same day) it turned again: two
+ways 10.2 / 26.1 against 10.1 / 29.2, one way 9.0 / 26.0 against 8.4 / 23.4. A saving that
+changes sign with the step is no reason to change the default.
 
 Restart: GMRES keeps stokes_restart Krylov vectors (200 by default, stored by melt row) and
 starts again from its iterate when they run out; a restart throws the space away, and a solve
