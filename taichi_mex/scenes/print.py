@@ -17,6 +17,7 @@ from taichi_mex.options import (Either, NONE, NonNegative, OneOf, Positive, Rang
                                 parse_optional_float)
 from taichi_mex.scenes.registry import SceneEntry, register
 from taichi_mex.sim.boundaries import column_slices, disc_lattice, plate_lattice
+from taichi_mex.sim.inlet import fastest_wall_speed
 from taichi_mex.toolpath.plan import make_plan
 from taichi_mex.toolpath.trajectory import parse_layers, parse_region
 from taichi_mex.core.state import PLATE, SOLID
@@ -248,10 +249,8 @@ class PrintScene:
 
         def speed(times_s):
             s = traj.sample(np.asarray(times_s, dtype=np.float64), clip=True)
-            v = np.asarray(s.velocity_mm_s, dtype=np.float64) * 1e-3
-            column = v.copy()
-            column[:, 2] -= np.asarray(s.flow_mm3_s, dtype=np.float64) * 1e-9 / area_m2
-            return np.maximum(np.linalg.norm(v, axis=1), np.linalg.norm(column, axis=1))
+            return fastest_wall_speed(np.asarray(s.velocity_mm_s, dtype=np.float64) * 1e-3,
+                                      np.asarray(s.flow_mm3_s, dtype=np.float64) * 1e-9 / area_m2)
 
         return speed
 

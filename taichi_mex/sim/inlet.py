@@ -19,6 +19,16 @@ from taichi_mex.sim.boundaries import column_slices, disc_lattice, nozzle_tip_la
 from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID
 
 
+def fastest_wall_speed(velocity_m_s, slide_m_s):
+    """Speed of the fastest particle the inlet moves (m/s), for one time or an array of them:
+    the tip moves at the nozzle's velocity v, the column's particles at v - w z, sliding down
+    the bore at w as the flow feeds them. |v| + w would overstate it by up to 41 % while the
+    nozzle moves across the bore's axis, and shorten every step by as much."""
+    v = np.asarray(velocity_m_s, dtype=np.float64)
+    column = v - np.multiply.outer(np.asarray(slide_m_s, dtype=np.float64), [0.0, 0.0, 1.0])
+    return np.maximum(np.linalg.norm(v, axis=-1), np.linalg.norm(column, axis=-1))
+
+
 @ti.data_oriented
 class NozzleInlet:
     def __init__(self, state, selection, spacing_m: float, support_radius_m: float,
@@ -114,11 +124,7 @@ class NozzleInlet:
             self.slices_spawned += 1
         self._now = (pos, travel)
         self._moved = True
-        # the fastest wall particle: the tip moves at vel, the column's particles at vel - w z
-        # (sliding down the bore as the flow feeds them), so |vel| + w would overstate it by
-        # up to 41 % while the nozzle moves across the bore's axis and shorten every step by
-        # as much
-        self.speed = float(max(np.linalg.norm(vel), np.linalg.norm(vel - np.array([0.0, 0.0, w]))))
+        self.speed = float(fastest_wall_speed(vel, w))
         o = self.state.origin_m
         released = self._move(self.state.n, pos[0] - o[0], pos[1] - o[1], pos[2] - o[2], vel[0],
                               vel[1], vel[2], w, travel, self.bead_at(time_s), time_s)
