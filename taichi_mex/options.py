@@ -405,8 +405,14 @@ class DFSPHOptions:
         "auto", help="split solve: true, false or 'auto': off in creeping steps (nu dt / dx^2 "
         ">= creeping_diffusion), where the viscous solve, not inertia, sets the velocity",
         check=OneOf(True, False, "auto"), parse=parse_bool_or_auto)
-    cfl: float = opt(0.5, help="dt = cfl 0.4 spacing / |v|max (-; SPlisHSPlasH's form)",
-                     check=Range(0.0, 2.0, lo_open=True))
+    cfl: float = opt(0.5, help="dt = cfl 0.4 spacing / u (-; SPlisHSPlasH's form), u the speed "
+                     "that time_step_speed names", check=Range(0.0, 2.0, lo_open=True))
+    time_step_speed: str = opt(
+        "relative", help="the speed u of the CFL bound: 'relative', that of melt against its "
+        "neighbours and of anything closing on it (a melt riding with the nozzle across a "
+        "travel move takes long steps), or 'absolute', the fastest melt or wall (the rule "
+        "before 2026-12-07, for comparison)", check=OneOf("relative", "absolute"),
+        flag="--time-step-speed", names=("time_step_speed",))
     max_dt_s: float = opt(1e-3, help="largest time step (s)", check=Positive())
     viscosity_tolerance: float = opt(1e-3, help="relative residual the implicit viscosity "
                                      "solve stops at (-)", check=Range(0.0, 1.0, lo_open=True, hi_open=True))

@@ -385,6 +385,30 @@ def test_the_first_step_does_not_depend_on_the_run_length():
     assert first[0] == first[1]
 
 
+def test_the_step_follows_the_motion_that_deforms_the_melt():
+    """The relative step (DFSPHOptions.time_step_speed): a velocity added to everything, walls
+    included, leaves the step as it was (Galilean invariance: melt riding with the nozzle
+    across a travel is not deformed), while melt sliding over the plate at U takes the CFL
+    step on U, the step the fastest particle gave before."""
+    sim = _film(1000.0)
+    solver = sim.solver
+    assert solver.relative
+    base = solver.time_step()[1]["cfl"]  # sorts the particles: indices below are stable
+    n = sim.state.n
+    v = sim.state.v.to_numpy()
+    phase = sim.state.numpy("phase")
+    U = np.array([0.05, 0.0, 0.0], dtype=v.dtype)
+    riding = v.copy()
+    riding[:n] += U
+    sim.state.v.from_numpy(riding)
+    assert solver.time_step()[1]["cfl"] == pytest.approx(base, rel=1e-4)
+    sliding = v.copy()
+    sliding[:n][phase == FLUID] += U
+    sim.state.v.from_numpy(sliding)
+    cfl_length = solver.opts.cfl * 0.4 * solver.dx
+    assert solver.time_step()[1]["cfl"] == pytest.approx(cfl_length / np.linalg.norm(U), rel=1e-3)
+
+
 def test_the_validation_scenes_refuse_the_split_solve_up_front():
     from taichi_mex.errors import UserInputError
 

@@ -71,6 +71,9 @@ class ScenePlan:
     #: on a known schedule (a print: the nozzle plus the melt sliding down its bore): the
     #: step estimate follows it through the run instead of taking its peak throughout
     wall_speed_m_s: object = None
+    #: whether the walls feed melt at an array of times (s): a print's nozzle extrudes, or
+    #: travels with its melt riding along, which the relative step lets take longer steps
+    extruding: object = None
     #: heat's diffusion limit for scenes that know it up front (s)
     thermal_dt_s: float | None = None
     #: print scenes: the scales of the creeping-flow numbers (reported; idle spans)

@@ -208,6 +208,8 @@ class PrintScene:
             # creeping-flow numbers: nozzle speed over the nozzle bore, the run's duration
             idle_windows=idle,
             wall_speed_m_s=self._wall_speed(dx),
+            extruding=lambda times: np.asarray(
+                traj.sample(np.asarray(times, dtype=np.float64), clip=True).flow_mm3_s) > 0.0,
             creeping=CreepingScales(max(speed, 1e-3), traj.printer.nozzle_diameter_mm * 1e-3, t1 - t0),
             info={"gcode": str(traj.source), "printer": traj.printer.name, "z_offset_m": zoff,
                    "selected_layers": sel.report()["selected_layers"],

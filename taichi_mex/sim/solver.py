@@ -162,6 +162,12 @@ class DFSPHSolver:
                                         bulk_modulus_pa=bulk, rows_capacity=melt_capacity)
         self.gravity = (0.0, 0.0, -float(run.gravity_m_s2))
         self.max_travel = float(run.dfsph.max_travel_spacings)
+        # the split solve (inertial scenes) keeps the absolute rule its travel check assumes
+        self.relative = run.dfsph.time_step_speed == "relative" and self.stokes is not None
+        self.grid = grid
+        self.dt_factor = float(run.dt_factor)
+        self._moves = 0  # steps advanced; the lists are fresh while _sorted_at equals it
+        self._sorted_at = -1
         self.retries = int(run.dfsph.step_retries)
         self.vmax = 0.0
         self.dx = run.spacing_m
@@ -188,27 +194,102 @@ class DFSPHSolver:
         pass
 
     def time_step(self) -> tuple[float, dict]:
-        """CFL on the fastest melt or wall; before the first step, when no melt moves yet,
-        Monaghan's (1992) force criterion dt <= 0.25 sqrt(h / g) on the force that starts it:
-        melt released from rest then starts with the same step whatever the run's length or
-        output interval. (Applied at every step to the step's own acceleration |dv| / dt it
-        would hold dt near 0.06 h / |dv|, below the CFL step wherever melt takes the nozzle's
-        speed within one step, as a creeping melt does by design.) The melt's own speed stays
-        in the bound: with the coupled solve no flung particle sets it, and where gravity
-        drives the melt (the collapse) its speed is the motion that sets the step. The walls'
-        speed is their fastest particle's (sim/inlet.py: the bore column slides down as the
-        tip moves across); with it the melt turning out of the bore and pushed ahead of the
-        face sets a print's step in 651 of the standard bead's 660 steps, within 2x of the
-        walls' speed in all (2026-12-07). Counted as |v| + w, the walls' had set it in most
-        steps, 20 % shorter on that bead."""
+        """The CFL bound dt <= cfl 0.4 dx / u on the speed u of the motion that deforms the
+        melt (time_step_speed = 'relative', under the coupled solve):
+
+        - within the kernel's support H, u is the largest |v_i - v_j| over the melt's pairs
+          (melt or wall j): no pair closes, opens or shears by more than cfl 0.4 dx in a step,
+          Monaghan's (1992) pair speed without the sound speed, which a creeping solve has not;
+        - from H to H + L (L one grid cell, H / 2), a pair closing at speed a enters the support
+          by at most cfl 0.4 dx: dt <= (r - H + cfl 0.4 dx) / a;
+        - beyond H + L no pair may reach H within the step: dt f <= L + f cfl 0.4 dx on the
+          diameter of all velocities (f the run's dt_factor, which multiplies the step after).
+
+        Melt riding rigidly with the nozzle across a travel move then takes steps about
+        (L + cfl 0.4 dx) / (cfl 0.4 dx) = 6x longer (cfl 0.5) than the nozzle's speed would
+        give; melt sheared under the face or pushed against the bead below keeps the step
+        the nozzle's speed gives, and gravity-driven spreading the step its front's speed
+        against the plate gives. 'absolute' takes u as the fastest melt or wall, as before.
+
+        Before the first step, when no melt moves yet, Monaghan's (1992) force criterion
+        dt <= 0.25 sqrt(h / g) on the force that starts it: melt released from rest then
+        starts with the same step whatever the run's length or output interval. (Applied at
+        every step to the step's own acceleration |dv| / dt it would hold dt near
+        0.06 h / |dv|, below the CFL step wherever melt takes the nozzle's speed within one
+        step, as a creeping melt does by design.)"""
         o = self.opts
-        speed = max(self.vmax, self.hooks.boundary_speed(), 1e-6)
-        limits = {"cfl": o.cfl * 0.4 * self.dx / speed, "max": self.max_dt}
+        cfl_length = o.cfl * 0.4 * self.dx
+        if self.relative:
+            with self.hooks.phase("neighbour search"):
+                self.hooks.refresh_lists()
+            self._sorted_at = self._moves
+            H = self.dfsph.K.H
+            margin = self.grid.cell
+            with self.hooks.phase("time step"):
+                rates = self._closing_rates(self.state.n, H, margin, cfl_length)
+            envelope = float(rates[1]) / (margin / self.dt_factor + cfl_length)
+            limits = {"cfl": 1.0 / max(float(rates[0]), envelope, 1e-30), "max": self.max_dt}
+        else:
+            speed = max(self.vmax, self.hooks.boundary_speed(), 1e-6)
+            limits = {"cfl": cfl_length / speed, "max": self.max_dt}
         g = abs(self.gravity[2])
         if self.hooks.steps() == 0 and g > 0.0:
             limits["force"] = 0.25 * (0.5 * self.dfsph.K.H / g) ** 0.5
         limits.update(self.hooks.extra_dt_limits())
         return min(limits.values()), limits
+
+    @ti.kernel
+    def _closing_rates(self, n: ti.i32, H: float, margin: float,
+                       cfl_length: float) -> ti.types.vector(2, float):
+        """(the melt's largest pair speed over its allowance in 1/s: |v_ij| / cfl_length
+        within H, closing speed / (r - H + cfl_length) from H to H + margin; the diameter of
+        the velocities of everything alive, m/s). Cells are scanned one further than the
+        lists reach, on positions sorted this step."""
+        lo0 = 1e30
+        lo1 = 1e30
+        lo2 = 1e30
+        hi0 = -1e30
+        hi1 = -1e30
+        hi2 = -1e30
+        for i in range(n):
+            v = self.state.v[i]
+            ti.atomic_min(lo0, v[0])
+            ti.atomic_min(lo1, v[1])
+            ti.atomic_min(lo2, v[2])
+            ti.atomic_max(hi0, v[0])
+            ti.atomic_max(hi1, v[1])
+            ti.atomic_max(hi2, v[2])
+        rate = 0.0
+        R = H + margin
+        for i in range(n):
+            if self.state.phase[i] == FLUID:
+                xi = self.state.x[i]
+                vi = self.state.v[i]
+                c = self.grid.cell_coords(xi)
+                dims = self.grid.dims_f[None]
+                z0 = ti.max(c[2] - self.grid.reach - 1, 0)
+                z1 = ti.min(c[2] + self.grid.reach + 1, dims[2] - 1)
+                for ox in range(-self.grid.reach - 1, self.grid.reach + 2):
+                    for oy in range(-self.grid.reach - 1, self.grid.reach + 2):
+                        cx = c[0] + ox
+                        cy = c[1] + oy
+                        if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
+                            col = (cx * dims[1] + cy) * dims[2]
+                            for j in range(self.grid.start[col + z0], self.grid.start[col + z1 + 1]):
+                                xij = xi - self.state.x[j]
+                                r2 = xij.norm_sqr()
+                                if j != i and r2 < R * R:
+                                    vij = vi - self.state.v[j]
+                                    if r2 < H * H:
+                                        ti.atomic_max(rate, vij.norm() / cfl_length)
+                                    else:
+                                        r = ti.sqrt(r2)
+                                        closing = -xij.dot(vij) / r
+                                        ti.atomic_max(rate, closing / (r - H + cfl_length))
+        diameter = ti.sqrt((hi0 - lo0) ** 2 + (hi1 - lo1) ** 2 + (hi2 - lo2) ** 2)
+        if n == 0:
+            diameter = 0.0
+        return ti.Vector([rate, diameter])
 
     def _record_speed(self) -> None:
         """The step's fastest melt against the fastest wall (the nozzle in a print), binned:
@@ -249,8 +330,10 @@ class DFSPHSolver:
 
     def step(self, t: float, dt: float) -> float:
         h = self.hooks
-        with h.phase("neighbour search"):
-            h.refresh_lists()
+        if self._sorted_at != self._moves:  # time_step sorted them for this step
+            with h.phase("neighbour search"):
+                h.refresh_lists()
+        self._moves += 1
         n = self.state.n
         d = self.dfsph
         with h.phase("densities and factors"):
