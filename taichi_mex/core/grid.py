@@ -378,23 +378,34 @@ class NeighbourGrid:
             task(i, j, xi - self.state.x[j], acc)
 
     @ti.func
+    def column(self, c, ox, oy, reach):
+        """The sorted particles of the cells (c_x + ox, c_y + oy, c_z - reach .. c_z + reach),
+        contiguous in the sorted arrays: their index range [lo, hi), empty outside the grid."""
+        dims = self.dims_f[None]
+        z0 = ti.max(c[2] - reach, 0)
+        z1 = ti.min(c[2] + reach, dims[2] - 1)
+        cx = c[0] + ox
+        cy = c[1] + oy
+        lo = 0
+        hi = 0
+        if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
+            col = (cx * dims[1] + cy) * dims[2]
+            lo = self.start[col + z0]
+            hi = self.start[col + z1 + 1]
+        return ti.Vector([lo, hi])
+
+    @ti.func
     def scan_cells(self, i, task: ti.template(), acc: ti.template()):
         """Like for_each_neighbour, but scanning the cells (used to build the lists)."""
         xi = self.state.x[i]
         c = self.cell_coords(xi)
-        dims = self.dims_f[None]
-        z0 = ti.max(c[2] - self.reach, 0)
-        z1 = ti.min(c[2] + self.reach, dims[2] - 1)
         for dx in ti.static(range(-self.reach, self.reach + 1)):
             for dy in ti.static(range(-self.reach, self.reach + 1)):
-                cx = c[0] + dx
-                cy = c[1] + dy
-                if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
-                    col = (cx * dims[1] + cy) * dims[2]
-                    for j in range(self.start[col + z0], self.start[col + z1 + 1]):
-                        xij = xi - self.state.x[j]
-                        if j != i and xij.norm_sqr() < self.R * self.R:
-                            task(i, j, xij, acc)
+                js = self.column(c, dx, dy, self.reach)
+                for j in range(js[0], js[1]):
+                    xij = xi - self.state.x[j]
+                    if j != i and xij.norm_sqr() < self.R * self.R:
+                        task(i, j, xij, acc)
 
     def neighbour_lists_numpy(self) -> list:
         """Neighbour indices of every live particle, sorted (test helper)."""

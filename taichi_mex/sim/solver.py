@@ -266,26 +266,21 @@ class DFSPHSolver:
                 xi = self.state.x[i]
                 vi = self.state.v[i]
                 c = self.grid.cell_coords(xi)
-                dims = self.grid.dims_f[None]
-                z0 = ti.max(c[2] - self.grid.reach - 1, 0)
-                z1 = ti.min(c[2] + self.grid.reach + 1, dims[2] - 1)
-                for ox in range(-self.grid.reach - 1, self.grid.reach + 2):
-                    for oy in range(-self.grid.reach - 1, self.grid.reach + 2):
-                        cx = c[0] + ox
-                        cy = c[1] + oy
-                        if 0 <= cx < dims[0] and 0 <= cy < dims[1] and z0 <= z1:
-                            col = (cx * dims[1] + cy) * dims[2]
-                            for j in range(self.grid.start[col + z0], self.grid.start[col + z1 + 1]):
-                                xij = xi - self.state.x[j]
-                                r2 = xij.norm_sqr()
-                                if j != i and r2 < R * R:
-                                    vij = vi - self.state.v[j]
-                                    if r2 < H * H:
-                                        ti.atomic_max(rate, vij.norm() / cfl_length)
-                                    else:
-                                        r = ti.sqrt(r2)
-                                        closing = -xij.dot(vij) / r
-                                        ti.atomic_max(rate, closing / (r - H + cfl_length))
+                wide = self.grid.reach + 1
+                for ox in range(-wide, wide + 1):
+                    for oy in range(-wide, wide + 1):
+                        js = self.grid.column(c, ox, oy, wide)
+                        for j in range(js[0], js[1]):
+                            xij = xi - self.state.x[j]
+                            r2 = xij.norm_sqr()
+                            if j != i and r2 < R * R:
+                                vij = vi - self.state.v[j]
+                                if r2 < H * H:
+                                    ti.atomic_max(rate, vij.norm() / cfl_length)
+                                else:
+                                    r = ti.sqrt(r2)
+                                    closing = -xij.dot(vij) / r
+                                    ti.atomic_max(rate, closing / (r - H + cfl_length))
         diameter = ti.sqrt((hi0 - lo0) ** 2 + (hi1 - lo1) ** 2 + (hi2 - lo2) ** 2)
         if n == 0:
             diameter = 0.0
