@@ -601,8 +601,9 @@ class DFSPHOptions:
         "'summation', the compression the kernel sum shows, min(1 - rho / rho0, 0) / dt "
         "(Bender & Koschier 2017); 'two-way', the kernel sum's error both ways, "
         "(1 - rho / rho0) / dt, on particles whose kernel is full (interior by Marrone et al.'s "
-        "2010 free-surface test; Shao & Lo's 2003 density-invariant source), compression only "
-        "on the surface and the layer under it; 'none', nothing (divergence-free steps). The "
+        "2010 free-surface test, with his eigenvalue over 0.75; Shao & Lo's 2003 "
+        "density-invariant source), compression only elsewhere: the surface, the layer under "
+        "it and holes in the melt; 'none', nothing (divergence-free steps). The "
         "kernel sum also reads a stretched arrangement as compressed (validation/extension: "
         "+6 % at a Hencky strain of 0.36)",
         check=OneOf("summation", "two-way", "none"), flag="--density-source")
