@@ -144,15 +144,15 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
     assert run_warnings({"particles_lost": 0}, run) == []  # EDAC: no viscous solve
     bad = run_warnings({"particles_lost": 11, "viscosity_residual_worst": 1.68}, run)
     assert len(bad) == 2
-    assert bad[0].startswith("11 melt particles left the domain: melt carried off")
-    where = run_warnings({"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
-                          "particles_lost_between_s": [0.5, 1.25]}, run)
-    assert where[0].startswith("3 melt particles left the domain (2 through top, 1 through x min, "
-                               "t = 0.5-1.25 s): melt carried off")
+    assert bad[0].startswith("11 melt particles were dropped: their positions were not finite")
+    outside = {"particles_lost": 0, "melt_outside_domain_max": 3,
+               "melt_outside_domain_by_face": {"top": 2, "x_min": 1},
+               "melt_outside_domain_between_s": [0.5, 1.25]}
+    where = run_warnings(outside, run)
+    assert where[0].startswith("up to 3 melt particles were outside the domain's box at once "
+                               "(2 through top, 1 through x min, t = 0.5-1.25 s): kept")
     from taichi_mex.post.report import _health  # and the report's health table says the same
-    assert "3 (2 through top, 1 through x min, t = 0.5-1.25 s)" in _health(
-        {"particles_lost": 3, "particles_lost_by_face": {"top": 2, "x_min": 1},
-         "particles_lost_between_s": [0.5, 1.25]})
+    assert "3 (2 through top, 1 through x min, t = 0.5-1.25 s)" in _health(outside)
     assert "1.7 against 0.001" in bad[1] and "viscosity_max_iterations (500)" in bad[1]
     carried = {"particles_lost": 0, "melt_over_face_fraction_max": 0.231,
                "melt_over_face_max_at_s": 1.664, "melt_over_face_fraction": 0.108,

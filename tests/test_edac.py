@@ -33,7 +33,7 @@ def test_hydrostatic_column_settles_to_rho_g_h(tmp_path):
     assert s["pressure_error_rel_max"] < 0.05
     assert s["pressure_error_rel_mean"] < 0.035
     assert s["deepest_slab_pressure_pa"] == pytest.approx(s["deepest_slab_expected_pa"], rel=0.05)
-    assert s["particles_lost"] == 0 and s["min_fluid_z_m"] > 0.0
+    assert s["particles_lost"] == 0 and s["melt_outside_domain_max"] == 0 and s["min_fluid_z_m"] > 0.0
     frames = read_frames(tmp_path / "particles.h5")
     assert len(frames) >= 10
     for f in frames:

@@ -47,19 +47,45 @@ def test_lists_match_brute_force_with_edges(skin):
         np.testing.assert_array_equal(got[i], expect[i])
 
 
-def test_outside_and_nan_particles_are_dropped_but_nozzle_is_parked():
+def test_melt_outside_the_box_is_kept_nan_dropped_and_the_nozzle_parked():
+    """The grid drops no melt for where it is: melt outside the domain's box is sorted into
+    the nearest cells and counted by the face it is beyond (the nozzle carries melt past a
+    block's box at its last lift: 48-78 particles were dropped there, 2026-12-07); only a
+    position that is not finite is dropped. The nozzle outside is parked (it travels)."""
     backend.init("cpu", "f32")
     H = 0.1
     lo, hi = np.zeros(3), np.ones(3) * 0.5
     pts = np.array([[0.1, 0.1, 0.1], [0.12, 0.1, 0.1], [0.9, 0.1, 0.1], [np.nan, 0, 0], [2.0, 2.0, 2.0],
                     [0.1, 0.1, 0.7], [0.1, -0.2, 0.1], [0.1, 0.2, -1e-3]])
     st, grid, ids = _build(pts, [FLUID, FLUID, FLUID, FLUID, INLET, FLUID, SOLID, FLUID], H, lo, hi)
-    assert st.n == 3  # two melt particles inside + the parked inlet particle
-    assert grid.lost_total == 5
-    # each lost particle is named by the face it crossed; NaN by none
-    assert grid.lost_last == {"x_max": 1, "not_finite": 1, "top": 1, "y_min": 1, "bottom": 1}
+    assert st.n == 7  # all but the NaN: six melt (four outside) and the parked inlet particle
+    assert grid.lost_total == 1 and grid.lost_last == {"not_finite": 1}
+    assert grid.outside_last == {"x_max": 1, "top": 1, "y_min": 1, "bottom": 1}
     phases = st.phase.to_numpy()[: st.n]
-    assert sorted(phases.tolist()) == [FLUID, FLUID, INLET]
+    assert sorted(phases.tolist()) == [FLUID] * 5 + [SOLID, INLET]
+
+
+@pytest.mark.parametrize("skin", [0.0, 0.3])
+def test_lists_match_brute_force_outside_the_box(skin):
+    """Melt strewn up to three supports beyond every face keeps exactly its neighbours:
+    clamping a cell index moves no two cells apart, so each query's reach still covers them."""
+    backend.init("cpu", "f64")
+    rng = np.random.default_rng(5)
+    H = 0.1
+    lo, hi = np.zeros(3), np.array([0.5, 0.4, 0.3])
+    inside = rng.uniform(lo, hi, size=(300, 3))
+    outside = rng.uniform(lo - 3 * H, hi + 3 * H, size=(300, 3))
+    pts = np.concatenate([inside, outside])
+    st, grid, ids = _build(pts, [FLUID] * len(pts), H, lo, hi, skin=skin * H)
+    assert st.n == len(pts) and grid.lost_total == 0
+    top = lo + np.asarray(grid.dims) * grid.cell  # the grid covers whole cells past hi
+    beyond = np.any((outside < lo) | (outside >= top), axis=1).sum()
+    assert beyond > 100 and sum(grid.outside_last.values()) == beyond
+    x_sorted = st.numpy("position")
+    expect = _brute(x_sorted, H + skin * H)
+    got = grid.neighbour_lists_numpy()
+    for i in range(st.n):
+        np.testing.assert_array_equal(got[i], expect[i])
 
 
 def test_idle_walls_get_no_list():

@@ -92,6 +92,7 @@ def test_a_loose_inner_solve_converges_where_the_nozzle_leaves_melt_at_rest(tmp_
     s = _run(tmp_path, "loose", **{"run.dfsph.stokes_inner_tolerance": 0.3,
                                     "run.dfsph.stokes_norm": "criterion"})
     assert s["time_step_halvings"] == 0 and s["particles_lost"] == 0
+    assert s["melt_outside_domain_max"] == 0
     assert not any(s["unconverged_solves_redone"].values())
 
 
@@ -107,6 +108,7 @@ def test_an_extrapolated_start_keeps_the_bead_across_an_idle_span(tmp_path):
     a = _run(tmp_path, "extrapolated", **{"run.dfsph.stokes_initial_guess": "extrapolated"})
     b = _run(tmp_path, "previous")
     assert a["skipped_time_s"] > 0.07 and a["particles_lost"] == b["particles_lost"] == 0
+    assert a["melt_outside_domain_max"] == b["melt_outside_domain_max"] == 0
     assert a["time_step_halvings"] == b["time_step_halvings"] == 0
     assert not any(a["unconverged_solves_redone"].values())
     for key in ("bead_width_p99_mm", "bead_height_p99_mm"):

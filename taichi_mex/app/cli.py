@@ -115,8 +115,15 @@ def run_warnings(summary: dict, run) -> list[str]:
     lost = summary.get("particles_lost", 0)
     if lost:
         where = lost_melt_where(summary)
-        out.append(f"{lost} melt particles left the domain" + (f" ({where})" if where else "")
-                   + ": melt carried off the nozzle or the part")
+        out.append(f"{lost} melt particles were dropped" + (f" ({where})" if where else "")
+                   + ": their positions were not finite")
+    outside = summary.get("melt_outside_domain_max", 0)
+    if outside:
+        where = lost_melt_where(summary, "melt_outside_domain")
+        out.append(f"up to {outside} melt particles were outside the domain's box at once"
+                   + (f" ({where})" if where else "") + ": kept and simulated, searched in "
+                   "the box's edge cells (slower there); melt carried off on the nozzle or "
+                   "the part, or a domain too small (run.margin_mm)")
     if summary.get("melt_over_face_fraction_max", 0.0) >= OVER_FACE_WARN:
         out.append(f"melt stood over the nozzle's tip face ({melt_over_face_text(summary)}): "
                    "strings and blobs the nozzle lifts and drags, or laid over the part above "

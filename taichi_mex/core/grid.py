@@ -32,7 +32,8 @@ import numpy as np
 from taichi_mex.backend import current, ti
 from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID, shape_bucket
 
-#: where lost melt left the grid: its six faces, then positions that are not finite (a blow-up)
+#: the faces of the domain's box melt outside it is beyond, then positions that are not
+#: finite (a blow-up: the only melt the grid drops)
 LOST_FACES = ("x_min", "x_max", "y_min", "y_max", "bottom", "top", "not_finite")
 NOT_FINITE = len(LOST_FACES) - 1
 
@@ -89,12 +90,16 @@ class NeighbourGrid:
         self.x_ref = ti.Vector.field(3, float, shape=cap)  # positions at the last rebuild
         self.overflow = ti.field(ti.i32, shape=())
         self.lost_melt = ti.field(ti.i32, shape=())
-        #: melt lost in the last rebuild by the face it crossed (LOST_FACES order)
+        #: melt dropped in the last rebuild (not finite), then melt outside the box by the
+        #: face it is beyond (LOST_FACES order), kept
         self.lost_face = ti.field(ti.i32, shape=NOT_FINITE + 1)
+        self.outside_melt = ti.field(ti.i32, shape=())
+        self.outside_face = ti.field(ti.i32, shape=NOT_FINITE + 1)
         self.serial_scatter = current().get("arch", "cpu") == "cpu"
         self._overflow = 0
         self.lost_total = 0
-        self.lost_last = {}  #: the last rebuild's lost melt by the face it crossed (LOST_FACES)
+        self.lost_last = {}  #: the last rebuild's dropped melt ({"not_finite": count})
+        self.outside_last = {}  #: the last rebuild's melt outside the box, by face (LOST_FACES)
         self._reorder = None  # built on the first rebuild, once every module registered its fields
 
     @staticmethod
@@ -104,15 +109,31 @@ class NeighbourGrid:
     # ------------------------------------------------------------- sorting
     @ti.func
     def cell_coords(self, x):
+        """x's cell, clamped into the grid: a particle outside the domain's box is sorted into
+        the nearest cell. Clamping moves no two cells further apart (per axis |clamp(a) -
+        clamp(b)| <= |a - b|), so every neighbour within a query's reach of cells is still
+        scanned, and the search stays exact: melt the nozzle carries past the box's edge keeps
+        its neighbours instead of being dropped, at the cost of crowding the edge cells."""
         c = ti.Vector([0, 0, 0])
+        dims = self.dims_f[None]
         for d in ti.static(range(3)):
-            c[d] = ti.cast(ti.floor((x[d] - self.lo_f[None][d]) / self.cell), ti.i32)
+            t = (x[d] - self.lo_f[None][d]) / self.cell
+            t = ti.min(ti.max(t, 0.0), ti.cast(dims[d], float) - 0.5)  # before the cast
+            c[d] = ti.cast(ti.floor(t), ti.i32)
         return c
 
     @ti.func
-    def inside(self, c):
-        dims = self.dims_f[None]
-        return 0 <= c[0] < dims[0] and 0 <= c[1] < dims[1] and 0 <= c[2] < dims[2]
+    def face_outside(self, x):
+        """Index in LOST_FACES of the face of the domain's box that x is beyond (the last
+        axis it is out along), -1 inside."""
+        face = -1
+        for d in ti.static(range(3)):
+            t = (x[d] - self.lo_f[None][d]) / self.cell
+            if t < 0.0:
+                face = 2 * d
+            elif t >= ti.cast(self.dims_f[None][d], float):
+                face = 2 * d + 1
+        return face
 
     # The whole rebuild is one generated kernel (see _make_rebuild): each stage below is a
     # ti.func whose loops sit at the kernel's top level, so Taichi parallelises them, and the
@@ -120,40 +141,35 @@ class NeighbourGrid:
     @ti.func
     def _bin(self, n):
         self.lost_melt[None] = 0
+        self.outside_melt[None] = 0
         for f in range(NOT_FINITE + 1):
             self.lost_face[f] = 0
+            self.outside_face[f] = 0
         for c in range(self.n_alloc + 2):
             self.count[c] = 0
         for i in range(n):
-            c = self.cell_coords(self.state.x[i])
+            x = self.state.x[i]
             finite = True
             for d in ti.static(range(3)):
-                finite = finite and not ti.math.isnan(self.state.x[i][d])
+                finite = finite and not (ti.math.isnan(x[d]) or ti.math.isinf(x[d]))
             ph = self.state.phase[i]
             lin = self.dropped_bucket
-            if finite and self.inside(c):
-                dims = self.dims_f[None]
-                lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
-            elif finite and (ph == NOZZLE or ph == INLET):
-                lin = self.parked_bucket  # the nozzle may travel outside the simulated region
+            if finite:
+                face = self.face_outside(x)
+                if face >= 0 and (ph == NOZZLE or ph == INLET):
+                    lin = self.parked_bucket  # the nozzle may travel outside the simulated region
+                else:
+                    c = self.cell_coords(x)
+                    dims = self.dims_f[None]
+                    lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
+                    if face >= 0 and ph <= SOLID:
+                        ti.atomic_add(self.outside_melt[None], 1)
+                        ti.atomic_add(self.outside_face[face], 1)
             elif ph <= SOLID:
                 ti.atomic_add(self.lost_melt[None], 1)
-                ti.atomic_add(self.lost_face[self._face_crossed(c, finite)], 1)
+                ti.atomic_add(self.lost_face[NOT_FINITE], 1)
             self.cell_of[i] = lin
             ti.atomic_add(self.count[lin], 1)
-
-    @ti.func
-    def _face_crossed(self, c, finite):
-        """Index in LOST_FACES of the face a particle outside the grid crossed (the last
-        axis it is out along; a position that is not finite has none)."""
-        face = NOT_FINITE
-        if finite:
-            for d in ti.static(range(3)):
-                if c[d] < 0:
-                    face = 2 * d
-                elif c[d] >= self.dims_f[None][d]:
-                    face = 2 * d + 1
-        return face
 
     @ti.func
     def _exclusive_scan(self, values: ti.template(), starts: ti.template(), length):
@@ -200,21 +216,26 @@ class NeighbourGrid:
 
     def rebuild(self):
         """Sort live particles by cell, permute all registered fields, rebuild the neighbour
-        lists; return the number of melt particles lost (left the domain). Particles whose
-        position is NaN (retired boundaries, or a blow-up) are dropped too."""
+        lists; return the number of melt particles dropped: those whose position is not
+        finite (a blow-up; retired boundaries, NaN by design, are dropped uncounted). Melt
+        outside the domain's box is kept (cell_coords) and counted in outside_last."""
         n = self.state.n
         if n == 0:
             return 0
         if self._reorder is None:
             self._reorder = _make_rebuild(self)
             self.state.frozen = True
-        alive, lost, overflow = (int(v) for v in self._reorder(n))
+        alive, lost, overflow, outside = (int(v) for v in self._reorder(n))
         self.state.n = alive
         self.lost_total += lost
         self.lost_last = {}
         if lost:
             self.lost_last = {face: int(count) for face, count in
                               zip(LOST_FACES, self.lost_face.to_numpy()) if count}
+        self.outside_last = {}
+        if outside:
+            self.outside_last = {face: int(count) for face, count in
+                                 zip(LOST_FACES, self.outside_face.to_numpy()) if count}
         self._overflow = overflow
         self.stale = False
         self.rebuilds += 1
@@ -431,7 +452,7 @@ def _make_rebuild(grid):
     nf = len(fields)
 
     @ti.kernel
-    def rebuild(n: ti.i32) -> ti.types.vector(3, ti.i32):
+    def rebuild(n: ti.i32) -> ti.types.vector(4, ti.i32):
         grid._bin(n)
         grid._scan()
         grid._scatter(n)
@@ -444,6 +465,7 @@ def _make_rebuild(grid):
                 fields[k][i] = temps[k][i]
             grid.x_ref[i] = state.x[i]
         grid._build_lists()
-        return ti.Vector([grid.start[grid.dropped_bucket], grid.lost_melt[None], grid.overflow[None]])
+        return ti.Vector([grid.start[grid.dropped_bucket], grid.lost_melt[None], grid.overflow[None],
+                          grid.outside_melt[None]])
 
     return rebuild

@@ -117,12 +117,13 @@ def law_note(gap_mm: float, config: dict | None) -> str:
             "bundled bead +6 / +11 / +20 % over the law under 0.6 / 1.0 / 1.4 mm faces).")
 
 
-def lost_melt_where(summary: dict) -> str:
-    """Where and when melt left the domain, e.g. '2 through top, 1 through x min, t =
-    0.5-1.25 s'; '' where the run recorded neither."""
+def lost_melt_where(summary: dict, key: str = "particles_lost") -> str:
+    """Where and when melt was dropped (key 'particles_lost') or outside the domain's box
+    ('melt_outside_domain'), e.g. '2 through top, 1 through x min, t = 0.5-1.25 s'; ''
+    where the run recorded neither."""
     parts = [f"{n} through {face.replace('_', ' ')}"
-             for face, n in (summary.get("particles_lost_by_face") or {}).items()]
-    span = summary.get("particles_lost_between_s") or []
+             for face, n in (summary.get(f"{key}_by_face") or {}).items()]
+    span = summary.get(f"{key}_between_s") or []
     if len(span) == 2:
         parts.append(f"t = {span[0]:.4g}-{span[1]:.4g} s")
     return ", ".join(parts)
@@ -147,6 +148,12 @@ def melt_over_face_text(summary: dict) -> str:
             f"{100 * end:.2g} % at t = {summary['melt_over_face_at_s']:.4g} s")
 
 
+def _outside(summary: dict) -> str:
+    n = summary.get("melt_outside_domain_max", 0)
+    where = lost_melt_where(summary, "melt_outside_domain")
+    return f"{n}" + (f" ({where})" if where else "")
+
+
 def _health(summary: dict) -> str:
     """The solver's figures this run recorded; a row whose figures the run did not record (a
     scheme without that solve) is left out."""
@@ -159,6 +166,8 @@ def _health(summary: dict) -> str:
     redone = summary.get("unconverged_solves_redone") or {}
     rows = [
         ["particles lost", [_verdict(not lost, f"{lost}" + (f" ({where})" if where else ""))]],
+        ["melt outside the domain's box (kept): most at once",
+         [_outside(summary) if "melt_outside_domain_max" in summary else None]],
         ["melt over the nozzle's tip face (carried up, or in its way): most / last", [_verdict(
             summary.get("melt_over_face_fraction_max", 0.0) < OVER_FACE_WARN,
             melt_over_face_text(summary)) if "melt_over_face_fraction_max" in summary else None]],

@@ -106,6 +106,8 @@ def save(sim, description: dict) -> Path:
             "capacity": cap, "n": n, "fields": arrays, "values": values,
             "run": {"time_s": sim.time_s, "steps": sim.steps, "lost_particles": sim.lost_particles,
                     "lost_by_face": sim.lost_by_face, "lost_times_s": sim.lost_times_s,
+                    "outside_max": sim.outside_max, "outside_by_face": sim.outside_by_face,
+                    "outside_times_s": sim.outside_times_s,
                     "over_face": sim.over_face,
                     "inlet_retired": sim._inlet_retired, "skipped": sim.skipped}}
     path = Path(sim.out_dir) / FILE
@@ -168,6 +170,9 @@ def restore(sim, data: dict) -> None:
     sim.lost_particles = run["lost_particles"]
     sim.lost_by_face = run.get("lost_by_face", {})  # checkpoints before 2026-12-06 lack them
     sim.lost_times_s = run.get("lost_times_s", [])
+    sim.outside_max = run.get("outside_max", 0)  # since 2026-12-07
+    sim.outside_by_face = run.get("outside_by_face", {})
+    sim.outside_times_s = run.get("outside_times_s", [])
     # since 2026-12-06 (later); the summary's names only (the first day's used shorter ones)
     sim.over_face.update({k: v for k, v in run.get("over_face", {}).items() if k in sim.over_face})
     sim._inlet_retired = run["inlet_retired"]

@@ -130,6 +130,11 @@ class Simulation:
         self.lost_particles = 0
         self.lost_by_face: dict[str, int] = {}
         self.lost_times_s: list[float] = []  # first and last time melt was lost
+        # melt outside the domain's box (kept: core/grid.py, cell_coords): the most at once,
+        # the most beyond each face, and the first and last time any was
+        self.outside_max = 0
+        self.outside_by_face: dict[str, int] = {}
+        self.outside_times_s: list[float] = []
         self.over_face = _over_face_record()
         self.resumed = False
         self._description = None
@@ -549,6 +554,12 @@ class Simulation:
                 self.lost_by_face[face] = self.lost_by_face.get(face, 0) + count
             self.lost_times_s = [self.lost_times_s[0] if self.lost_times_s else self.time_s,
                                  self.time_s]
+        if self.grid.outside_last:
+            self.outside_max = max(self.outside_max, sum(self.grid.outside_last.values()))
+            for face, count in self.grid.outside_last.items():
+                self.outside_by_face[face] = max(self.outside_by_face.get(face, 0), count)
+            self.outside_times_s = [self.outside_times_s[0] if self.outside_times_s
+                                    else self.time_s, self.time_s]
         if self.grid.overflowed():
             raise SimulationDiverged(
                 f"At t = {self.time_s:.6g} s, {self.grid.overflowed()} particles had more than "
@@ -675,6 +686,9 @@ class Simulation:
             self.lost_particles = 0
             self.lost_by_face = {}
             self.lost_times_s = []
+            self.outside_max = 0
+            self.outside_by_face = {}
+            self.outside_times_s = []
             self.over_face = _over_face_record()
             self._inlet_retired = False
             self.skipped = []
@@ -990,11 +1004,15 @@ class Simulation:
             "spacing_mm": self.run_opts.spacing_mm,
             "particles_active": int(self.state.n),
             "particles_by_phase": counts,
+            # melt dropped: only positions that are not finite (a blow-up stops the run)
             "particles_lost": int(self.lost_particles),
-            # where and when: the face of the domain each left by (grid.LOST_FACES), and the
-            # first and last time melt was lost
             "particles_lost_by_face": dict(self.lost_by_face),
             "particles_lost_between_s": [float(t) for t in self.lost_times_s],
+            # melt outside the domain's box, kept and searched in its edge cells: the most at
+            # once, the most beyond each face (grid.LOST_FACES), first and last time
+            "melt_outside_domain_max": int(self.outside_max),
+            "melt_outside_domain_by_face": dict(self.outside_by_face),
+            "melt_outside_domain_between_s": [float(t) for t in self.outside_times_s],
             "deposited_volume_mm3": melt * vol_particle * 1e9,
             "simulated_time_s": float(self.time_s - self.plan.t_start_s),
             "end_time_s": float(self.time_s),
