@@ -310,6 +310,16 @@ def _over_face(r) -> str:
             f"{100 * r['melt_over_face_fraction']:.1f} %")
 
 
+def _outside(r) -> str:
+    """The most melt outside the domain's box at once (kept since 2026-12-07; dropped and
+    counted as lost before), with its faces; '' for a run that did not record it."""
+    if "melt_outside_domain_max" not in r:
+        return ""
+    faces = ", ".join(f"{n} {f.replace('_', ' ')}"
+                      for f, n in (r.get("melt_outside_domain_by_face") or {}).items())
+    return f"{r['melt_outside_domain_max']}" + (f" ({faces})" if faces else "")
+
+
 def _estimate_over_wall(r) -> str:
     """The estimate printed before the run over the run's wall time ('-' where there is none)."""
     wall = (r.get("estimate") or {}).get("wall_time_estimate_s")
@@ -327,6 +337,7 @@ WINDOW = COMMON + [
         f"{r['melt_speed_max_m_s']:.3f}; {r['melt_faster_than_walls_steps']['2-4x']:,} / "
         f"{r['melt_faster_than_walls_steps']['>4x']:,}") if r.get("melt_faster_than_walls_steps") else ""),
     ("melt over the nozzle's face: most (t s) / last", _over_face),
+    ("melt outside the domain, most", _outside),
     ] + LOSSES[:1] + COUPLED_SOLVE
 
 #: issue 15's blocks: to the end, nothing lost, every solve converged, sections without voids,
@@ -339,6 +350,7 @@ BLOCKS = COMMON + [
     ("section voids", pct("void_fraction", 0)),
     # melt over the nozzle's tip face: carried up on it, or laid over the layer it prints
     ("melt over the nozzle's face: most (t s) / last", _over_face),
+    ("melt outside the domain, most", _outside),
     ("fastest melt m/s", num("melt_speed_max_m_s", "{:.3f}")),
     ("worst viscous residual", num("viscosity_residual_worst", "{:.2g}")),
     ] + COUPLED_SOLVE
