@@ -106,12 +106,15 @@ with lambda > 0.75 3,260 steps, 17 / 0, 0.122 m/s; compression only 3,162 steps,
 0.119 m/s.
 ``"summation"``: the clamp everywhere, which never corrects expansion inside the melt, so
 what a step's explicit drift leaves expanded stays and grows with the step. Side by side
-(validation/strands and validation/collapse, "The continuity source both ways", 2026-12-07):
-the strands' interior kernel sums 0.01-0.05 % off on average against 0.39-1.13 % (0.03-0.14 %
-against 0.68-2.04 % at twice the step); eleven of twelve strands narrower, by up to 11 points
-of the rounded rectangle (16 at twice the step), at the same iterations a step; the 0.3 mm
-collapse's interior 0.14 % against 1.30 % off, Huppert's coefficient 1.003 against 1.009, in
-17 % more steps. The constraint is an equality either way, so melt takes tension as freely as
+(validation/strands, "The continuity source both ways", on the relative step with the
+eigenvalue bound, 2026-12-07): the strands' interior kernel sums 0.08-0.23 % off on average
+against 0.53-1.30 % (0.30-0.62 % against 1.01-2.38 % at twice the step); at twice the step
+all six strands narrower, by 2-5 points of the rounded rectangle, at the print's step within
+-1 to +3 points of the one-way source, at the same iterations a step. On the lab-frame step
+with flag 0 alone (the first table that day) the interior came to 0.01-0.05 % against
+0.39-1.13 % and eleven of twelve strands narrower, by up to 11 points; the 0.3 mm collapse's
+interior 0.14 % against 1.30 % off, Huppert's coefficient 1.003 against 1.009, in 17 % more
+steps (validation/collapse). The constraint is an equality either way, so melt takes tension as freely as
 compression. The kernel sum also reads melt stretched at constant volume as compressed (+6 %
 at a Hencky strain of 0.36, validation/extension), so either source dilates a stretched
 filament; ``"none"`` keeps the steps divergence-free instead.
