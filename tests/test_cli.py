@@ -150,9 +150,9 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
                "melt_outside_domain_between_s": [0.5, 1.25]}
     where = run_warnings(outside, run)
     assert where[0].startswith("up to 3 melt particles were outside the domain's box at once "
-                               "(2 through top, 1 through x min, t = 0.5-1.25 s): kept")
+                               "(2 beyond top, 1 beyond x min, t = 0.5-1.25 s): kept")
     from taichi_mex.post.report import _health  # and the report's health table says the same
-    assert "3 (2 through top, 1 through x min, t = 0.5-1.25 s)" in _health(outside)
+    assert "3 (2 beyond top, 1 beyond x min, t = 0.5-1.25 s)" in _health(outside)
     assert "1.7 against 0.001" in bad[1] and "viscosity_max_iterations (500)" in bad[1]
     carried = {"particles_lost": 0, "melt_over_face_fraction_max": 0.231,
                "melt_over_face_max_at_s": 1.664, "melt_over_face_fraction": 0.108,
