@@ -47,18 +47,19 @@ def test_lists_match_brute_force_with_edges(skin):
         np.testing.assert_array_equal(got[i], expect[i])
 
 
-def test_melt_outside_the_box_is_kept_nan_dropped_and_the_nozzle_parked():
+def test_melt_and_nozzle_outside_the_box_are_kept_and_nan_dropped():
     """The grid drops no melt for where it is: melt outside the domain's box is sorted into
     the nearest cells and counted by the face it is beyond (the nozzle carries melt past a
     block's box at its last lift: 48-78 particles were dropped there, 2026-12-07); only a
-    position that is not finite is dropped. The nozzle outside is parked (it travels)."""
+    position that is not finite is dropped. The nozzle outside is kept as well, so that melt
+    riding on it keeps its wall."""
     backend.init("cpu", "f32")
     H = 0.1
     lo, hi = np.zeros(3), np.ones(3) * 0.5
     pts = np.array([[0.1, 0.1, 0.1], [0.12, 0.1, 0.1], [0.9, 0.1, 0.1], [np.nan, 0, 0], [2.0, 2.0, 2.0],
                     [0.1, 0.1, 0.7], [0.1, -0.2, 0.1], [0.1, 0.2, -1e-3]])
     st, grid, ids = _build(pts, [FLUID, FLUID, FLUID, FLUID, INLET, FLUID, SOLID, FLUID], H, lo, hi)
-    assert st.n == 7  # all but the NaN: six melt (four outside) and the parked inlet particle
+    assert st.n == 7  # all but the NaN: six melt (four outside) and the inlet particle
     assert grid.lost_total == 1 and grid.lost_last == {"not_finite": 1}
     assert grid.outside_last == {"x_max": 1, "top": 1, "y_min": 1, "bottom": 1}
     phases = st.phase.to_numpy()[: st.n]

@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from taichi_mex.backend import current, ti
-from taichi_mex.core.state import FLUID, INLET, NOZZLE, SOLID, shape_bucket
+from taichi_mex.core.state import FLUID, SOLID, shape_bucket
 
 #: the faces of the domain's box melt outside it is beyond, then positions that are not
 #: finite (a blow-up: the only melt the grid drops)
@@ -68,14 +68,13 @@ class NeighbourGrid:
         cap = state.capacity
         self.cell_of = ti.field(ti.i32, shape=cap)
         self.perm = ti.field(ti.i32, shape=cap)
-        # buckets: the cells, then PARKED (kept, outside the grid), then DROPPED
-        self.parked_bucket = self.n_alloc
-        self.dropped_bucket = self.n_alloc + 1
-        self.count = ti.field(ti.i32, shape=self.n_alloc + 2)
-        self.start = ti.field(ti.i32, shape=self.n_alloc + 3)
+        # buckets: the cells, then DROPPED (positions that are not finite)
+        self.dropped_bucket = self.n_alloc
+        self.count = ti.field(ti.i32, shape=self.n_alloc + 1)
+        self.start = ti.field(ti.i32, shape=self.n_alloc + 2)
         self.block = 1024
         # block sums of the scans over the cells and (packed lists) over the particles
-        n_blocks = max(1, int(math.ceil(max(self.n_alloc + 2, cap) / self.block)))
+        n_blocks = max(1, int(math.ceil(max(self.n_alloc + 1, cap) / self.block)))
         self.block_sum = ti.field(ti.i32, shape=n_blocks + 1)
         self.max_neighbours = int(max_neighbours)
         self.packed = self.skin > 0.0
@@ -145,7 +144,7 @@ class NeighbourGrid:
         for f in range(NOT_FINITE + 1):
             self.lost_face[f] = 0
             self.outside_face[f] = 0
-        for c in range(self.n_alloc + 2):
+        for c in range(self.n_alloc + 1):
             self.count[c] = 0
         for i in range(n):
             x = self.state.x[i]
@@ -155,16 +154,15 @@ class NeighbourGrid:
             ph = self.state.phase[i]
             lin = self.dropped_bucket
             if finite:
+                # the nozzle too: melt riding on it past the box keeps its wall (parked, the
+                # nozzle left such melt free, and it fell: 1.73 m/s in test_idle's full run)
+                c = self.cell_coords(x)
+                dims = self.dims_f[None]
+                lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
                 face = self.face_outside(x)
-                if face >= 0 and (ph == NOZZLE or ph == INLET):
-                    lin = self.parked_bucket  # the nozzle may travel outside the simulated region
-                else:
-                    c = self.cell_coords(x)
-                    dims = self.dims_f[None]
-                    lin = (c[0] * dims[1] + c[1]) * dims[2] + c[2]
-                    if face >= 0 and ph <= SOLID:
-                        ti.atomic_add(self.outside_melt[None], 1)
-                        ti.atomic_add(self.outside_face[face], 1)
+                if face >= 0 and ph <= SOLID:
+                    ti.atomic_add(self.outside_melt[None], 1)
+                    ti.atomic_add(self.outside_face[face], 1)
             elif ph <= SOLID:
                 ti.atomic_add(self.lost_melt[None], 1)
                 ti.atomic_add(self.lost_face[NOT_FINITE], 1)
@@ -196,8 +194,8 @@ class NeighbourGrid:
 
     @ti.func
     def _scan(self):
-        self._exclusive_scan(self.count, self.start, self.n_alloc + 2)
-        for c in range(self.n_alloc + 2):
+        self._exclusive_scan(self.count, self.start, self.n_alloc + 1)
+        for c in range(self.n_alloc + 1):
             self.count[c] = 0  # reused as the fill cursor by the scatter
 
     @ti.func
