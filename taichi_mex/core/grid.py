@@ -32,10 +32,9 @@ import numpy as np
 from taichi_mex.backend import current, ti
 from taichi_mex.core.state import FLUID, SOLID, shape_bucket
 
-#: the faces of the domain's box melt outside it is beyond, then positions that are not
-#: finite (a blow-up: the only melt the grid drops)
-LOST_FACES = ("x_min", "x_max", "y_min", "y_max", "bottom", "top", "not_finite")
-NOT_FINITE = len(LOST_FACES) - 1
+#: the faces of the domain's box that melt outside it is beyond
+FACES = ("x_min", "x_max", "y_min", "y_max", "bottom", "top")
+N_FACES = len(FACES)  # a plain int for the kernels
 
 
 @ti.data_oriented
@@ -88,17 +87,16 @@ class NeighbourGrid:
         self.wall_needed = ti.field(ti.i32, shape=cap)
         self.x_ref = ti.Vector.field(3, float, shape=cap)  # positions at the last rebuild
         self.overflow = ti.field(ti.i32, shape=())
+        #: melt dropped in the last rebuild (its position not finite), then melt outside the
+        #: box, kept, and that melt by the face it is beyond (FACES order)
         self.lost_melt = ti.field(ti.i32, shape=())
-        #: melt dropped in the last rebuild (not finite), then melt outside the box by the
-        #: face it is beyond (LOST_FACES order), kept
-        self.lost_face = ti.field(ti.i32, shape=NOT_FINITE + 1)
         self.outside_melt = ti.field(ti.i32, shape=())
-        self.outside_face = ti.field(ti.i32, shape=NOT_FINITE + 1)
+        self.outside_face = ti.field(ti.i32, shape=N_FACES)
         self.serial_scatter = current().get("arch", "cpu") == "cpu"
         self._overflow = 0
         self.lost_total = 0
         self.lost_last = {}  #: the last rebuild's dropped melt ({"not_finite": count})
-        self.outside_last = {}  #: the last rebuild's melt outside the box, by face (LOST_FACES)
+        self.outside_last = {}  #: the last rebuild's melt outside the box, by face (FACES)
         self._reorder = None  # built on the first rebuild, once every module registered its fields
 
     @staticmethod
@@ -123,7 +121,7 @@ class NeighbourGrid:
 
     @ti.func
     def face_outside(self, x):
-        """Index in LOST_FACES of the face of the domain's box that x is beyond (the last
+        """Index in FACES of the face of the domain's box that x is beyond (the last
         axis it is out along), -1 inside."""
         face = -1
         for d in ti.static(range(3)):
@@ -141,8 +139,7 @@ class NeighbourGrid:
     def _bin(self, n):
         self.lost_melt[None] = 0
         self.outside_melt[None] = 0
-        for f in range(NOT_FINITE + 1):
-            self.lost_face[f] = 0
+        for f in range(N_FACES):
             self.outside_face[f] = 0
         for c in range(self.n_alloc + 1):
             self.count[c] = 0
@@ -165,7 +162,6 @@ class NeighbourGrid:
                     ti.atomic_add(self.outside_face[face], 1)
             elif ph <= SOLID:
                 ti.atomic_add(self.lost_melt[None], 1)
-                ti.atomic_add(self.lost_face[NOT_FINITE], 1)
             self.cell_of[i] = lin
             ti.atomic_add(self.count[lin], 1)
 
@@ -226,14 +222,11 @@ class NeighbourGrid:
         alive, lost, overflow, outside = (int(v) for v in self._reorder(n))
         self.state.n = alive
         self.lost_total += lost
-        self.lost_last = {}
-        if lost:
-            self.lost_last = {face: int(count) for face, count in
-                              zip(LOST_FACES, self.lost_face.to_numpy()) if count}
+        self.lost_last = {"not_finite": lost} if lost else {}
         self.outside_last = {}
         if outside:
             self.outside_last = {face: int(count) for face, count in
-                                 zip(LOST_FACES, self.outside_face.to_numpy()) if count}
+                                 zip(FACES, self.outside_face.to_numpy()) if count}
         self._overflow = overflow
         self.stale = False
         self.rebuilds += 1

@@ -1009,7 +1009,7 @@ class Simulation:
             "particles_lost_by_face": dict(self.lost_by_face),
             "particles_lost_between_s": [float(t) for t in self.lost_times_s],
             # melt outside the domain's box, kept and searched in its edge cells: the most at
-            # once, the most beyond each face (grid.LOST_FACES), first and last time
+            # once, the most beyond each face (grid.FACES), first and last time
             "melt_outside_domain_max": int(self.outside_max),
             "melt_outside_domain_by_face": dict(self.outside_by_face),
             "melt_outside_domain_between_s": [float(t) for t in self.outside_times_s],
