@@ -36,8 +36,8 @@ FORMAT_NAME = "taichi_mex run description"
 
 def scene_entries() -> dict:
     """name -> SceneEntry of every scene (importing a scene module registers it)."""
-    from taichi_mex.scenes import (collapse, dam_break, die_swell, hydrostatic, print,  # noqa: F401
-                                   bore_flow, extension, shear, squeeze_film, thermal_beam)
+    from taichi_mex.scenes import (collapse, couette, dam_break, die_swell, hydrostatic,  # noqa: F401
+                                   print, bore_flow, extension, shear, squeeze_film, thermal_beam)
     from taichi_mex.scenes.registry import SCENES
 
     return SCENES

@@ -729,6 +729,36 @@ CASES = {
          ("centre pressure / lubrication", num("centre_pressure_ratio", "{:.3f}")),
          ("GMRES iterations", num("stokes_iterations")),
          ("converged", lambda r: str(r.get("stokes_converged", "")))]),
+    "couette": Case(
+        "a lid sliding at 60 mm/s over a PLA film (1000 Pa s) on the plate, with and without a "
+        "pressure gradient along the slide, one coupled solve: the film's middle, layer by layer, "
+        "against plane Couette-Poiseuille flow",
+        [(label, scene("couette", *args)) for label, args in (
+            ("Couette, 4 layers", ()),
+            ("Couette, 4 layers, 12.7 Pa s", ("--viscosity", 12.7)),
+            ("Couette + Poiseuille, 4 layers", ("--gradient-pa-mm", 6e6)),
+            ("Couette + Poiseuille, 6 layers", ("--gradient-pa-mm", 6e6 * 4 / 9, "--gap-mm", 0.3,
+                                                "--radius-mm", 1.5)),
+            ("Couette + Poiseuille, 8 layers", ("--gradient-pa-mm", 1.5e6, "--gap-mm", 0.4,
+                                                "--radius-mm", 2.0)),
+            ("Poiseuille alone, 4 layers", ("--gradient-pa-mm", 6e6, "--speed-mm-s", 0)),
+            ("Couette, lid lifted 0.1 spacing", ("--lid-lift-spacings", 0.1)),
+            ("Couette, lid lifted 0.2 spacing", ("--lid-lift-spacings", 0.2)),
+            ("Couette, lid lifted 0.4 spacing", ("--lid-lift-spacings", 0.4)))],
+        [("Couette, 4 layers", scene("couette"))],
+        [("particles", num("particles_active")),
+         ("layers", lambda r: f"{r['gap_m'] / (r['spacing_mm'] * 1e-3):.0f}" if r.get("gap_m") else ""),
+         ("Poiseuille u_max / V", lambda r: f"{r['poiseuille_u_max_m_s'] / r['speed_m_s']:.2f}"
+          if r.get("speed_m_s") else "alone"),
+         ("profile error max / (V + u_max)", num("profile_error_max", "{:.4f}")),
+         ("parabola / Poiseuille's", num("poiseuille_ratio", "{:.3f}")),
+         ("slip plate / lid (spacings)", lambda r: (
+             f"{r['slip_plate_m'] / (r['spacing_mm'] * 1e-3):+.2f} / "
+             + (f"{r['slip_lid_m'] / (r['spacing_mm'] * 1e-3):+.2f}" if r.get("slip_lid_m") == r.get("slip_lid_m")
+                and r.get("slip_lid_m") is not None else "-")) if r.get("slip_plate_m") is not None else ""),
+         ("cross flow max / (V + u_max)", num("cross_flow_max", "{:.4f}")),
+         ("GMRES iterations", num("stokes_iterations")),
+         ("converged", lambda r: str(r.get("stokes_converged", "")))]),
     "bore_flow": Case(
         "PLA (1000 Pa s) falling under gravity through the 0.4 mm nozzle bore, ends open, one "
         "coupled solve: axial velocity of the middle third against Hagen-Poiseuille",
