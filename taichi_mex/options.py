@@ -578,6 +578,16 @@ class DFSPHOptions:
         flag="--no-surface-traction", const=False, flag_not="--surface-traction",
         flag_help="coupled solve: the viscous pair sum at the free surface, which carries no "
         "viscous flux, in place of the traction-free condition (a print's default)")
+    stokes_wall_ghost: str = opt(
+        "quadratic", help="coupled solve without the surface traction: the velocity a wall "
+        "particle shows the melt's viscous terms. 'adami': Adami, Hu & Adams's (2012) mirror "
+        "2 v_b - (the melt's Shepard average), exact for a linear profile only: Poiseuille's "
+        "parabola comes out 1.21 / 1.10 / 1.06x at 4 / 6 / 8 layers across a gap "
+        "(validation/couette). 'quadratic': where a wall's surface and normal are known (the "
+        "plate, a nozzle's flat face), the melt's velocity fitted along the normal by a "
+        "parabola through the wall's velocity at the surface (weighted least squares over "
+        "the melt in reach), evaluated at the particle's depth; Adami's elsewhere",
+        check=OneOf("quadratic", "adami"), flag="--wall-ghost")
     stokes_viscous_isotropic_share: float | None = opt(
         None, help="coupled solve without the surface traction: the share of Morris, Fox & "
         "Zhu's (1997) Laplacian of the whole velocity difference in each viscous pair term, the "

@@ -69,6 +69,11 @@ class ParticleState:
         self.phase = self.add("phase", dtype=ti.i32)
         self.bead = self.add("bead_id", dtype=ti.i32)  #: extruding interval, -1 for boundaries
         self.born = self.add("birth_time")  #: s, time the particle entered the domain
+        #: a wall particle's depth under the wall's surface (m) and the surface's normal into
+        #: the melt, where its geometry gives them (a plate, a nozzle's flat face); depth 0:
+        #: not given (melt, solidified melt, a nozzle's flank)
+        self.wall_depth = self.add("wall_depth")
+        self.wall_normal = self.add("wall_normal", 3)
 
     def add(self, name: str, n: int = 1, dtype=None):
         """Allocate and register a per-particle field (n = 1 scalar, 3 vector)."""
@@ -144,6 +149,20 @@ class ParticleState:
             self.phase[i] = phase
             self.bead[i] = bead
             self.born[i] = time_s
+            self.wall_depth[i] = 0.0
+            self.wall_normal[i] = ti.Vector.zero(self.wall_normal.dtype, 3)
+
+    def set_wall_surface(self, sl: slice, normal, depth_m) -> None:
+        """The wall surface of particles ``sl`` (just appended): their depth under it (m,
+        > 0) and its unit normal into the melt (one for all, or one per particle)."""
+        k = sl.stop - sl.start
+        if k == 0:
+            return
+        dt = real_np_dtype()
+        nrm = np.ascontiguousarray(np.broadcast_to(np.asarray(normal, dtype=np.float64), (k, 3)), dtype=dt)
+        dep = np.ascontiguousarray(np.broadcast_to(np.asarray(depth_m, dtype=np.float64), (k,)), dtype=dt)
+        _write_vector(self.wall_normal, sl.start, nrm)
+        _write_scalar(self.wall_depth, sl.start, dep)
 
 
 @ti.kernel

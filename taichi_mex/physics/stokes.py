@@ -582,6 +582,19 @@ class CoupledStokes:
         self.ghost = ti.Vector.field(3, ti.f64, shape=cap)  # Shepard melt velocity at a wall
         self.werr = ti.Vector.field(3, ti.f64, shape=cap)  # momentum residual less dt G(dk)
         self.shepard = ti.field(ti.f64, shape=cap)  # sum_j W_bj over the melt
+        # the quadratic wall ghost (see "Walls"), by melt row: whether its fit holds, the
+        # wall's normal and the row's distance from its surface, the fit's inverse normal
+        # matrix (m00, m01, m11), its weights' sums (A, C) and, per application, the fitted
+        # slope and curvature of z's velocity along the normal
+        self.quadratic = bool(opts.stokes_wall_ghost == "quadratic") and not self.traction
+        fcap = cap if self.quadratic else 1
+        self.fit_ok = ti.field(ti.i32, shape=fcap)
+        self.fit_n = ti.Vector.field(3, ti.f64, shape=fcap)
+        self.fit_s = ti.field(ti.f64, shape=fcap)
+        self.fit_m = ti.Vector.field(3, ti.f64, shape=fcap)
+        self.fit_AC = ti.Vector.field(2, ti.f64, shape=fcap)
+        self.fit_a = ti.Vector.field(3, ti.f64, shape=fcap)
+        self.fit_b = ti.Vector.field(3, ti.f64, shape=fcap)
         self.wall_row = ti.field(ti.i32, shape=cap)  # walls within reach of the melt
         self.n_walls = ti.field(ti.i32, shape=())
         self.cF = ti.field(ti.f64, shape=(cap, grid.max_neighbours))
@@ -690,6 +703,11 @@ class CoupledStokes:
             if self.state.phase[j] != FLUID:
                 vb = ti.cast(self.state.v[j], ti.f64)
                 gb = 2.0 * vb if self.shepard[j] > 0.0 else vb  # Adami's ghost, less u~_b
+                if ti.static(self.quadratic):
+                    if self._fitted(i, j):
+                        d = ti.cast(self.state.wall_depth[j], ti.f64)
+                        ac = self.fit_AC[i]
+                        gb = (1.0 + d * ac[0] - d * d * ac[1]) * vb
                 w = self._pair(cF, gb, xij)
                 for d in ti.static(range(3)):
                     acc[9 + d] += w[d]
@@ -935,6 +953,113 @@ class CoupledStokes:
             self.eacc[k] = self.T[k] @ ti.Vector([acc[0], acc[1], acc[2]]) + \
                 ti.Vector([acc[3], acc[4], acc[5]]) + self.hg[k]
 
+    # ------------------------------------------------------------ the quadratic wall ghost
+    @ti.func
+    def _fitted(self, i, b):
+        """Whether the pair (melt row i, wall b) takes the quadratic ghost."""
+        return self.fit_ok[i] == 1 and self.state.wall_depth[b] > 0.0
+
+    @ti.func
+    def _nearest_wall_task(self, i, slot, j, xij, acc: ti.template()):
+        """acc: (r^2, j) of the nearest wall particle whose surface is known."""
+        if self.state.phase[j] != FLUID and self.state.wall_depth[j] > 0.0:
+            r2 = ti.cast(xij.norm_sqr(), ti.f64)
+            if r2 < self.K.H * self.K.H and r2 < acc[0]:
+                acc[0] = r2
+                acc[1] = ti.cast(j, ti.f64)
+
+    @ti.func
+    def _fit_weight(self, i, j, xij):
+        """(W_ij, s_j): melt j's kernel weight and its distance from row i's wall surface."""
+        w = ti.cast(self.K.W(xij.norm()), ti.f64)
+        sj = self.fit_s[i] - self.fit_n[i].dot(ti.cast(xij, ti.f64))
+        return w, sj
+
+    @ti.func
+    def _fit_moment_task(self, i, slot, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID and j != i:
+            w, sj = self._fit_weight(i, j, xij)
+            if w > 0.0:
+                if sj > 0.0:
+                    acc[0] += w * sj * sj
+                    acc[1] += w * sj * sj * sj
+                    acc[2] += w * sj * sj * sj * sj
+                else:
+                    acc[3] += 1.0
+
+    @ti.func
+    def _fit_sum_task(self, i, slot, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID and j != i:
+            w, sj = self._fit_weight(i, j, xij)
+            m = self.fit_m[i]
+            acc[0] += w * (m[0] * sj + m[1] * sj * sj)
+            acc[1] += w * (m[1] * sj + m[2] * sj * sj)
+
+    @ti.func
+    def _fit_setup(self, n, S: ti.template()):
+        """Per melt row next to a wall of known surface: a parabola w(s) = a s + b s^2 through
+        the wall's velocity at its surface (s = 0), fitted to the melt in reach (the row
+        itself included) by least squares weighted with W; a wall particle at depth d then
+        shows the pair w(-d) = -a d + b d^2 (see "Walls"). Rows whose melt in reach does not
+        all lie on the melt's side of that surface, or lies at one distance only, keep
+        Adami's ghost."""
+        ti.loop_config(serialize=S > 1)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            self.fit_ok[i] = 0
+            near = ti.Vector([1e300, -1.0], ti.f64)
+            self.grid.for_each_listed(i, self._nearest_wall_task, near)
+            if near[1] >= 0.0:
+                b = ti.cast(near[1], ti.i32)
+                nrm = ti.cast(self.state.wall_normal[b], ti.f64)
+                si = nrm.dot(ti.cast(self.state.x[i] - self.state.x[b], ti.f64)) \
+                    - ti.cast(self.state.wall_depth[b], ti.f64)
+                self.fit_n[i] = nrm
+                self.fit_s[i] = si
+                if si > 0.0:
+                    w0 = ti.cast(self.K.W(0.0), ti.f64)
+                    m = ti.Vector([w0 * si * si, w0 * si * si * si, w0 * si * si * si * si, 0.0])
+                    self.grid.for_each_listed(i, self._fit_moment_task, m)
+                    det = m[0] * m[2] - m[1] * m[1]
+                    if m[3] == 0.0 and det > 1e-6 * m[0] * m[2]:
+                        self.fit_m[i] = ti.Vector([m[2] / det, -m[1] / det, m[0] / det])
+                        mi = self.fit_m[i]
+                        ac = ti.Vector([w0 * (mi[0] * si + mi[1] * si * si),
+                                        w0 * (mi[1] * si + mi[2] * si * si)])
+                        self.grid.for_each_listed(i, self._fit_sum_task, ac)
+                        self.fit_AC[i] = ac
+                        self.fit_ok[i] = 1
+
+    @ti.func
+    def _fit_slopes(self, n, src: ti.template(), S: ti.template()):
+        """fit_a, fit_b: the fitted slope and curvature of src's velocities (melt only, the
+        walls' velocity part is in the right-hand side) at every fitted row."""
+        ti.loop_config(serialize=S > 1)
+        for slot in range(n):
+            i = self.rows.index[slot]
+            if self.fit_ok[i] == 1:
+                si = self.fit_s[i]
+                m = self.fit_m[i]
+                w0 = ti.cast(self.K.W(0.0), ti.f64)
+                ui = src[i]
+                ca = w0 * (m[0] * si + m[1] * si * si)
+                cb = w0 * (m[1] * si + m[2] * si * si)
+                a = ti.Vector([ca * ui[0], ca * ui[1], ca * ui[2]])
+                bb = ti.Vector([cb * ui[0], cb * ui[1], cb * ui[2]])
+                xi = self.state.x[i]
+                r = self.grid.row(i)
+                for k in range(self.grid.n_nbr[i]):
+                    j = self.grid.nbr[r + k]
+                    if self.state.phase[j] == FLUID and j != i:
+                        w, sj = self._fit_weight(i, j, xi - self.state.x[j])
+                        ca2 = w * (m[0] * sj + m[1] * sj * sj)
+                        cb2 = w * (m[1] * sj + m[2] * sj * sj)
+                        uj = src[j]
+                        a += ti.Vector([ca2 * uj[0], ca2 * uj[1], ca2 * uj[2]])
+                        bb += ti.Vector([cb2 * uj[0], cb2 * uj[1], cb2 * uj[2]])
+                self.fit_a[i] = a
+                self.fit_b[i] = bb
+
     @ti.func
     def _shepard_task(self, b, j, xij, acc: ti.template()):
         if self.state.phase[j] == FLUID:
@@ -989,6 +1114,10 @@ class CoupledStokes:
             ug = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             if self.shepard[j] > 0.0:
                 ug = self.ghost[j] / self.shepard[j]
+            if ti.static(self.quadratic):
+                if self._fitted(i, j):
+                    d = ti.cast(self.state.wall_depth[j], ti.f64)
+                    ug = d * self.fit_a[i] - d * d * self.fit_b[i]
             l = self._pair(cF, ui + ug, xij)  # u_i - u_b, u_b = 2 v_b - u~_b: linear part
             gi = self._corrected(i, gV)
             for d in ti.static(range(3)):
@@ -1010,6 +1139,8 @@ class CoupledStokes:
             acc = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             self.grid.for_each_neighbour(b, self._ghost_task, acc)
             self.ghost[b] = acc
+        if ti.static(self.quadratic):
+            self._fit_slopes(n, self.z, S)
         if ti.static(self.traction):
             self._energy(n, S)
 
@@ -1404,6 +1535,8 @@ class CoupledStokes:
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.surf_rhs[i] = self.eacc[i]
+        if ti.static(self.quadratic):
+            self._fit_setup(n, S)
         g = ti.Vector([gx, gy, gz])
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
@@ -2024,6 +2157,8 @@ class CoupledStokes:
             self.affine[None] = 1
             self._energy(n, S)
             self.affine[None] = 0
+        if ti.static(self.quadratic):
+            self._fit_slopes(n, self.X, S)
         f = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
         for slot in range(n):
@@ -2058,6 +2193,12 @@ class CoupledStokes:
             ub = vb
             if self.shepard[j] > 0.0:
                 ub = 2.0 * vb - self.ghost[j] / self.shepard[j]
+            if ti.static(self.quadratic):
+                if self._fitted(i, j):
+                    d = ti.cast(self.state.wall_depth[j], ti.f64)
+                    ac = self.fit_AC[i]
+                    ub = (1.0 + d * ac[0] - d * d * ac[1]) * vb - d * self.fit_a[i] \
+                        + d * d * self.fit_b[i]
             if ti.static(not self.traction):
                 acc += self._pair(self.cF[i, slot], ui - ub, xij)
             acc -= x[3] * self._corrected(i, self.V * ti.cast(self.K.F(xij.norm()), ti.f64) * ti.cast(xij, ti.f64))

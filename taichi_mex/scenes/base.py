@@ -14,6 +14,10 @@ class ParticleBlock:
     velocity_m_s: np.ndarray | None = None
     temperature_c: np.ndarray | float | None = None
     bead: int = -1
+    #: walls: the depth of each particle under the wall's surface (m) and the surface's unit
+    #: normal into the melt, for a wall whose geometry gives them (a plane); None: not given
+    wall_depth_m: np.ndarray | None = None
+    wall_normal: tuple | None = None
 
 
 @dataclass

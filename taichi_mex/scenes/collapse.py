@@ -59,7 +59,8 @@ class CollapseScene:
             domain_lo_m=np.array([-reach - pad, -reach - pad, -pad]),
             domain_hi_m=np.array([reach + pad, reach + pad, self.Hc + pad]),
             t_start_s=0.0, t_end_s=self.until_s,
-            blocks=[ParticleBlock(fluid, FLUID), ParticleBlock(plate, PLATE)],
+            blocks=[ParticleBlock(fluid, FLUID),
+                    ParticleBlock(plate, PLATE, wall_depth_m=-plate[:, 2], wall_normal=(0, 0, 1))],
             section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
             speed_scale_m_s=math.sqrt(run.gravity_m_s2 * self.Hc),
             # no cap besides the run's length: the melt's own motion sets the step (the CFL

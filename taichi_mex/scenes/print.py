@@ -184,7 +184,8 @@ class PrintScene:
         hi = np.array([hi_xy[0] + H, hi_xy[1] + H, z_top])
 
         plate = plate_lattice(lo_xy[0], hi_xy[0], lo_xy[1], hi_xy[1], dx, run.wall_layers())
-        blocks = [ParticleBlock(plate, PLATE, temperature_c=None)]
+        blocks = [ParticleBlock(plate, PLATE, temperature_c=None, wall_depth_m=-plate[:, 2],
+                                wall_normal=(0.0, 0.0, 1.0))]
         substrate = self._substrate(dx, lo_xy, hi_xy, zoff)
         if len(substrate):
             blocks.append(ParticleBlock(substrate, SOLID, temperature_c=None))

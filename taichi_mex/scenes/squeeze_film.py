@@ -61,8 +61,10 @@ class SqueezeFilmScene:
             domain_lo_m=np.array([-reach - pad, -reach - pad, -pad]),
             domain_hi_m=np.array([reach + pad, reach + pad, h + pad]),
             t_start_s=0.0, t_end_s=0.0,
-            blocks=[ParticleBlock(film, FLUID), ParticleBlock(plate, PLATE),
-                    ParticleBlock(disc, NOZZLE, velocity_m_s=down)],
+            blocks=[ParticleBlock(film, FLUID),
+                    ParticleBlock(plate, PLATE, wall_depth_m=-plate[:, 2], wall_normal=(0, 0, 1)),
+                    ParticleBlock(disc, NOZZLE, velocity_m_s=down, wall_depth_m=disc[:, 2] - gap,
+                                  wall_normal=(0, 0, -1))],
             section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
             speed_scale_m_s=self.V, info={"gap_m": gap, "radius_m": R, "speed_m_s": self.V},
         )

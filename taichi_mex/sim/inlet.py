@@ -97,6 +97,11 @@ class NozzleInlet:
         sl = self.state.append(pos + offsets, NOZZLE, self.particle_mass, vel, density=0.0,
                                time_s=time_s)
         self._set_offsets(sl.start, offsets.astype(np.float64), -1)
+        # the flat face's slab comes first (nozzle_tip_lattice), its depth under the face the
+        # offset's height; the flank is left to Adami's ghost
+        face = int(np.count_nonzero(offsets[:, 2] < self.column_slices * self.dx))
+        self.state.set_wall_surface(slice(sl.start, sl.start + face), (0.0, 0.0, -1.0),
+                                    offsets[:face, 2])
         self.nozzle_particles = len(offsets)
 
     def _set_offsets(self, start: int, offsets: np.ndarray, slice_index: int) -> None:

@@ -518,6 +518,8 @@ class Simulation:
             sl = self.state.append(block.position_m, block.phase, self.mass, block.velocity_m_s,
                                    density=self.material.density_kg_m3, bead=block.bead,
                                    time_s=self.plan.t_start_s)
+            if block.wall_depth_m is not None:
+                self.state.set_wall_surface(sl, block.wall_normal, block.wall_depth_m)
             if self.thermal is not None and block.temperature_c is not None:
                 self.thermal.set_temperature(sl, block.temperature_c)
 
