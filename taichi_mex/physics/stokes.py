@@ -63,7 +63,32 @@ wall particle takes the ghost velocity of Adami, Hu & Adams (J. Comput. Phys. 23
 Eq. 22-23), u_b = 2 v_b - u~_b with u~_b the Shepard average of the melt around it, so that the
 velocity vanishes relative to the wall at the wall's surface rather than a kernel's depth
 inside it: with u_b = v_b the squeeze film's lubrication pressure came out as for a gap 15 %
-(6 layers) to 27 % (4 layers) wider (measured, 2026-12-02). The ghost makes L non-symmetric,
+(6 layers) to 27 % (4 layers) wider (measured, 2026-12-02). The mirror is exact for a
+velocity linear in the distance from the wall and not for a curved one (Macia, Antuono,
+Gonzalez & Colagrossi, Prog. Theor. Phys. 125, 2011, analyse its error): at a wall particle
+half a spacing deep it shows -u(d) where the profile's continuation is -u(d) + u''(0) d^2, so
+the first melt layer's viscous term misses a share of the curvature. Between a plate and a
+lid (scene couette, 4 layers across the gap) Poiseuille's parabola came out 1.08x its
+amplitude under the pair sum and the squeeze film lost a tenth of its force to it. So without
+the traction (``stokes_wall_ghost="quadratic"``, the default) a melt row next to a wall whose
+surface and normal its geometry gives (the plate, a nozzle's flat face, a scene's lid or
+disc: ``ParticleState.wall_depth``, ``wall_normal``) fits its own melt in reach, itself
+included, with a parabola w(s) = a s + b s^2 through the wall's velocity at the surface
+(s: the distance from the surface along the normal, weights W; a 2 x 2 least-squares
+system), and each such wall particle at depth d shows that row u_b = v_b + w(-d) =
+v_b - a d + b d^2: Morris, Fox & Zhu's (J. Comput. Phys. 136, 1997) per-pair extrapolation
+through the wall, one order higher. A wall particle's own support reaches one melt layer,
+too few for a parabola; the row's reaches two or three. a and b are linear in the melt's
+velocities (the fit's weights are fixed within a step), so the operator stays linear: one
+more neighbour pass over the rows next to such walls per product. Rows whose melt in reach
+does not all lie on the melt's side of the surface (around a face's edge), or lies at one
+distance only, keep Adami's mirror, as do walls without a known surface (the nozzle's flank
+and bore, solidified melt). Measured (2026-12-07, 2 cores, validation/couette): Poiseuille's
+parabola 0.996 of its amplitude at 4 layers (Adami's 1.076), a sliding lid within 0.4 % of
+V; the squeeze film at R / h = 5 and 4 layers 0.90 of Stefan's force (0.80), at 6 layers
+1.00; the bundled bead at standard 0.496 x 0.186 mm (0.504 x 0.181) in the same iterations a
+step. The traction's strain-energy form keeps Adami's mirror (its adjoint sums are built on
+the Shepard weights). The ghost makes L non-symmetric,
 so the system is solved by GMRES (Saad & Schultz, SIAM J. Sci. Stat. Comput. 7, 1986),
 restarted and right-preconditioned. For k the preconditioner takes the diagonal of SIMPLE's
 approximation of the Schur complement, D B^-1 G with B the momentum rows' 3x3 diagonal blocks
