@@ -579,16 +579,18 @@ class DFSPHOptions:
         flag_help="coupled solve: the viscous pair sum at the free surface, which carries no "
         "viscous flux, in place of the traction-free condition (a print's default)")
     stokes_wall_ghost: str = opt(
-        "quadratic", help="coupled solve without the surface traction: the velocity a wall "
-        "particle shows a melt row's viscous pair terms. 'quadratic': next to a wall whose "
-        "surface and normal its geometry gives (the plate, a nozzle's flat face), the row's "
-        "melt in reach fitted along the normal by a parabola through the wall's velocity at "
-        "its surface (weighted least squares), shown at the wall particle's depth; Adami's "
-        "mirror elsewhere. 'adami': Adami, Hu & Adams's (2012) mirror 2 v_b - (the melt's "
-        "Shepard average) at every wall, exact for a linear profile only: Poiseuille's "
-        "parabola across a 4-layer gap came out 1.08x its amplitude (0.996x quadratic) and "
-        "the squeeze film 0.80 of Stefan's force (0.90) (validation/couette, physics/stokes.py)",
-        check=OneOf("quadratic", "adami"), flag="--wall-ghost")
+        "adami", help="coupled solve without the surface traction: the velocity a wall "
+        "particle shows a melt row's viscous pair terms. 'adami': Adami, Hu & Adams's (2012) "
+        "mirror 2 v_b - (the melt's Shepard average), exact for a linear profile only: "
+        "Poiseuille's parabola across a 4-layer gap comes out 1.08x its amplitude and the "
+        "squeeze film 0.80 of Stefan's force. 'quadratic': next to a wall whose surface and "
+        "normal its geometry gives (the plate, a nozzle's flat face), the row's melt in reach "
+        "fitted along the normal by a parabola through the wall's velocity at its surface "
+        "(weighted least squares), shown at the wall particle's depth; Adami's mirror "
+        "elsewhere: the parabola 0.996x, the squeeze film 0.90 (validation/couette). Not yet a "
+        "print's default: on strands it moved widths by -2 to +5 % of the rounded rectangle, "
+        "and two layers across a gap took 1.8x the GMRES iterations (physics/stokes.py)",
+        check=OneOf("adami", "quadratic"), flag="--wall-ghost")
     stokes_viscous_isotropic_share: float | None = opt(
         None, help="coupled solve without the surface traction: the share of Morris, Fox & "
         "Zhu's (1997) Laplacian of the whole velocity difference in each viscous pair term, the "

@@ -38,10 +38,11 @@ def test_the_quadratic_wall_ghost_gives_poiseuille_where_the_mirror_does_not():
     parabola across 4 layers has its amplitude (measured 0.996) and the sliding lid its line;
     Adami's mirror, exact for a line only, gave the parabola 1.08x its amplitude."""
     pair_sum = {"run.dfsph.stokes_surface_traction": False}
-    quadratic = _film(gradient_pa_mm=6e6, speed_mm_s=0.0, **pair_sum)
+    quadratic = _film(gradient_pa_mm=6e6, speed_mm_s=0.0, **pair_sum,
+                      **{"run.dfsph.stokes_wall_ghost": "quadratic"})
     mirror = _film(gradient_pa_mm=6e6, speed_mm_s=0.0, **pair_sum,
                    **{"run.dfsph.stokes_wall_ghost": "adami"})
-    lid = _film(**pair_sum)
+    lid = _film(**pair_sum, **{"run.dfsph.stokes_wall_ghost": "quadratic"})
     assert quadratic["stokes_converged"] and mirror["stokes_converged"] and lid["stokes_converged"]
     assert abs(quadratic["poiseuille_ratio"] - 1.0) < 0.015
     assert 1.05 < mirror["poiseuille_ratio"] < 1.11

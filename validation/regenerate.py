@@ -721,7 +721,11 @@ CASES = {
           scene("squeeze-film", "--radius-mm", r, "--gap-mm", h, "--spacing-mm", 0.05,
                 "--viscosity", mu))
          for r, h, mu in ((0.5, 0.2, 1000), (0.5, 0.2, 12.7), (1.0, 0.2, 1000), (2.0, 0.2, 1000),
-                          (1.5, 0.3, 1000), (2.0, 0.4, 1000))],
+                          (1.5, 0.3, 1000), (2.0, 0.4, 1000))]
+        + [(f"pair sum, {ghost}: R {r} mm, h {h} mm ({round(h / 0.05)} layers)",
+            scene("squeeze-film", "--radius-mm", r, "--gap-mm", h, "--spacing-mm", 0.05,
+                  "--no-surface-traction", "--wall-ghost", ghost))
+           for r, h in ((1.0, 0.2), (2.0, 0.2), (1.5, 0.3)) for ghost in ("quadratic", "adami")],
         [("R 0.5 mm, h 0.2 mm", scene("squeeze-film", "--radius-mm", 0.5, "--gap-mm", 0.2))],
         [("particles", num("particles_active")),
          ("R / h", lambda r: f"{r['radius_m'] / r['gap_m']:.1f}" if r.get("gap_m") else ""),
@@ -732,20 +736,37 @@ CASES = {
     "couette": Case(
         "a lid sliding at 60 mm/s over a PLA film (1000 Pa s) on the plate, with and without a "
         "pressure gradient along the slide, one coupled solve: the film's middle, layer by layer, "
-        "against plane Couette-Poiseuille flow",
+        "against plane Couette-Poiseuille flow, under the scenes' strain-energy form (Adami's "
+        "mirror at the walls) and a print's pair sum (the quadratic ghost, and the mirror)",
         [(label, scene("couette", *args)) for label, args in (
-            ("Couette, 4 layers", ()),
-            ("Couette, 4 layers, 12.7 Pa s", ("--viscosity", 12.7)),
-            ("Couette + Poiseuille, 4 layers", ("--gradient-pa-mm", 6e6)),
-            ("Couette + Poiseuille, 6 layers", ("--gradient-pa-mm", 6e6 * 4 / 9, "--gap-mm", 0.3,
-                                                "--radius-mm", 1.5)),
-            ("Couette + Poiseuille, 8 layers", ("--gradient-pa-mm", 1.5e6, "--gap-mm", 0.4,
-                                                "--radius-mm", 2.0)),
-            ("Poiseuille alone, 4 layers", ("--gradient-pa-mm", 6e6, "--speed-mm-s", 0)),
-            ("Couette, lid lifted 0.1 spacing", ("--lid-lift-spacings", 0.1)),
-            ("Couette, lid lifted 0.2 spacing", ("--lid-lift-spacings", 0.2)),
-            ("Couette, lid lifted 0.4 spacing", ("--lid-lift-spacings", 0.4)))],
-        [("Couette, 4 layers", scene("couette"))],
+            ("form: Couette, 4 layers", ()),
+            ("form: Couette, 4 layers, 12.7 Pa s", ("--viscosity", 12.7)),
+            ("form: Couette + Poiseuille, 4 layers", ("--gradient-pa-mm", 6e6)),
+            ("form: Couette + Poiseuille, 6 layers", ("--gradient-pa-mm", 6e6 * 4 / 9,
+                                                      "--gap-mm", 0.3, "--radius-mm", 1.5)),
+            ("form: Couette + Poiseuille, 8 layers", ("--gradient-pa-mm", 1.5e6, "--gap-mm", 0.4,
+                                                      "--radius-mm", 2.0)),
+            ("form: Poiseuille alone, 4 layers", ("--gradient-pa-mm", 6e6, "--speed-mm-s", 0)),
+            ("pair sum, quadratic: Couette, 4 layers", ("--no-surface-traction", "--wall-ghost", "quadratic")),
+            ("pair sum, quadratic: Poiseuille alone, 4 layers", ("--no-surface-traction", "--wall-ghost", "quadratic",
+                                                                  "--gradient-pa-mm", 6e6,
+                                                                  "--speed-mm-s", 0)),
+            ("pair sum, mirror: Poiseuille alone, 4 layers", ("--no-surface-traction",
+                                                               "--wall-ghost", "adami",
+                                                               "--gradient-pa-mm", 6e6,
+                                                               "--speed-mm-s", 0)),
+            ("pair sum, quadratic: Couette + Poiseuille, 4 layers", ("--no-surface-traction", "--wall-ghost", "quadratic",
+                                                                      "--gradient-pa-mm", 6e6)),
+            ("pair sum, quadratic: Couette + Poiseuille, 6 layers", (
+                "--no-surface-traction", "--wall-ghost", "quadratic", "--gradient-pa-mm", 6e6 * 4 / 9, "--gap-mm", 0.3,
+                "--radius-mm", 1.5)),
+            ("pair sum, quadratic: lid lifted 0.1 spacing", ("--no-surface-traction", "--wall-ghost", "quadratic",
+                                                              "--lid-lift-spacings", 0.1)),
+            ("pair sum, quadratic: lid lifted 0.2 spacing", ("--no-surface-traction", "--wall-ghost", "quadratic",
+                                                              "--lid-lift-spacings", 0.2)),
+            ("pair sum, quadratic: lid lifted 0.4 spacing", ("--no-surface-traction", "--wall-ghost", "quadratic",
+                                                              "--lid-lift-spacings", 0.4)))],
+        [("form: Couette, 4 layers", scene("couette"))],
         [("particles", num("particles_active")),
          ("layers", lambda r: f"{r['gap_m'] / (r['spacing_mm'] * 1e-3):.0f}" if r.get("gap_m") else ""),
          ("Poiseuille u_max / V", lambda r: f"{r['poiseuille_u_max_m_s'] / r['speed_m_s']:.2f}"

@@ -70,7 +70,7 @@ half a spacing deep it shows -u(d) where the profile's continuation is -u(d) + u
 the first melt layer's viscous term misses a share of the curvature. Between a plate and a
 lid (scene couette, 4 layers across the gap) Poiseuille's parabola came out 1.08x its
 amplitude under the pair sum and the squeeze film lost a tenth of its force to it. So without
-the traction (``stokes_wall_ghost="quadratic"``, the default) a melt row next to a wall whose
+the traction, with ``stokes_wall_ghost="quadratic"`` (opt-in, below), a melt row next to a wall whose
 surface and normal its geometry gives (the plate, a nozzle's flat face, a scene's lid or
 disc: ``ParticleState.wall_depth``, ``wall_normal``) fits its own melt in reach, itself
 included, with a parabola w(s) = a s + b s^2 through the wall's velocity at the surface
@@ -86,9 +86,14 @@ distance only, keep Adami's mirror, as do walls without a known surface (the noz
 and bore, solidified melt). Measured (2026-12-07, 2 cores, validation/couette): Poiseuille's
 parabola 0.996 of its amplitude at 4 layers (Adami's 1.076), a sliding lid within 0.4 % of
 V; the squeeze film at R / h = 5 and 4 layers 0.90 of Stefan's force (0.80), at 6 layers
-1.00; the bundled bead at standard 0.496 x 0.186 mm (0.504 x 0.181) in the same iterations a
-step. The traction's strain-energy form keeps Adami's mirror (its adjoint sums are built on
-the Shepard weights). The ghost makes L non-symmetric,
+1.00. Prints keep the mirror by default for now: on strands (validation/strands, "The walls'
+quadratic ghost") the ghost moved the nine-section widths by -2 to +5 % of the rounded
+rectangle (the bundled bead +7 / +10 / +15 % at draft / standard / fine against +6 / +12 /
++12 %), the 0.1 mm gap at two layers took 26 GMRES iterations a step against 15, and a
+two-bead print at two layers across its gap (tests/test_idle.py) carried 38 particles out of
+its box on the nozzle against 10, which moved its bead's 99th-percentile height by 0.14 mm
+between skipping the nozzle's absence and running it. The traction's strain-energy form keeps
+Adami's mirror (its adjoint sums are built on the Shepard weights). The ghost makes L non-symmetric,
 so the system is solved by GMRES (Saad & Schultz, SIAM J. Sci. Stat. Comput. 7, 1986),
 restarted and right-preconditioned. For k the preconditioner takes the diagonal of SIMPLE's
 approximation of the Schur complement, D B^-1 G with B the momentum rows' 3x3 diagonal blocks
