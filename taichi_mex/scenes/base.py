@@ -155,6 +155,54 @@ def bore(radius_m: float, length_m: float, spacing_m: float, layers: int) -> Bor
     return Bore(melt, box[(r >= radius_m) & (r < outer)], spacing_m, outer, layer)
 
 
+@dataclass
+class DiscFilm:
+    """A melt film of gap h and radius R on the plate (z <= 0) under a disc of wall particles
+    as wide (the film scenes: squeeze film, Couette film), in m; every wall's surface known."""
+
+    melt: np.ndarray
+    plate: np.ndarray
+    disc: np.ndarray
+    gap_m: float  #: h, a whole number of spacings
+    disc_surface_m: float  #: the disc's surface: h, or above it where the disc is lifted
+    reach_m: float  #: the plate's half-width
+    pad_m: float  #: the domain's margin around the walls
+
+    def blocks(self, disc_velocity_m_s) -> list:
+        """The film, the plate and the disc (nozzle particles moving at disc_velocity)."""
+        from taichi_mex.core.state import FLUID, NOZZLE, PLATE
+
+        return [ParticleBlock(self.melt, FLUID),
+                ParticleBlock(self.plate, PLATE, wall_depth_m=-self.plate[:, 2],
+                              wall_normal=(0.0, 0.0, 1.0)),
+                ParticleBlock(self.disc, NOZZLE,
+                              velocity_m_s=np.tile(disc_velocity_m_s, (len(self.disc), 1)),
+                              wall_depth_m=self.disc[:, 2] - self.disc_surface_m,
+                              wall_normal=(0.0, 0.0, -1.0))]
+
+
+def disc_film(radius_m: float, gap_m: float, run, scene: str, lift_m: float = 0.0) -> DiscFilm:
+    """The film of ``scene`` at run's spacing, refusing a gap of a fraction of a spacing; the
+    disc ``lift_m`` above the melt's top."""
+    from taichi_mex.errors import UserInputError
+
+    dx = run.spacing_m
+    R, h = radius_m, gap_m
+    if abs(h / dx - round(h / dx)) > 1e-6 or round(h / dx) < 2:
+        raise UserInputError(f"The {scene}'s gap {h * 1e3:g} mm must hold a whole number (at "
+                             f"least 2) of particle layers at {dx * 1e3:g} mm spacing; change "
+                             "--gap-mm or --spacing-mm.")
+    layers = run.wall_layers()
+    melt = lattice_block([-R, -R, 0.0], [R, R, h], dx)
+    melt = melt[np.hypot(melt[:, 0], melt[:, 1]) < R]
+    reach = R + (layers + 1) * dx
+    plate = lattice_block([-reach, -reach, -layers * dx], [reach, reach, 0.0], dx)
+    disc = lattice_block([-R, -R, h], [R, R, h + layers * dx], dx)
+    disc = disc[np.hypot(disc[:, 0], disc[:, 1]) < R]
+    disc[:, 2] += lift_m
+    return DiscFilm(melt, plate, disc, round(h / dx) * dx, h + lift_m, reach, (layers + 3) * dx)
+
+
 def coupled_pla_defaults(spacing_mm: float, dfsph: dict | None = None, **run) -> dict:
     """Defaults of a scene measured by the coupled solve: PLA melt at 1000 Pa s (Newtonian),
     DFSPH with the coupled creeping solve at ``spacing_mm``; ``dfsph``: further DFSPH options,

@@ -21,11 +21,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from taichi_mex.core.state import FLUID, NOZZLE, PLATE
+from taichi_mex.core.state import FLUID
 from taichi_mex.errors import UserInputError
 from taichi_mex.options import Positive, Range, opt
-from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
-                                    require_coupled_solve)
+from taichi_mex.scenes.base import ScenePlan, coupled_pla_defaults, disc_film, require_coupled_solve
 from taichi_mex.scenes.registry import SceneEntry, register
 
 #: the film's middle, where the rims (a gap or more away) leave the profile alone: r < this R
@@ -54,47 +53,29 @@ class CouetteScene:
 
     def plan(self, run, material) -> ScenePlan:
         require_coupled_solve(run, "Couette film")
-        dx = run.spacing_m
-        R, h = self.R, self.h
-        if abs(h / dx - round(h / dx)) > 1e-6 or round(h / dx) < 2:
-            raise UserInputError(f"The Couette film's gap {h * 1e3:g} mm must hold a whole number "
-                                 f"(at least 2) of particle layers at {dx * 1e3:g} mm spacing; "
-                                 "change --gap-mm or --spacing-mm.")
-        if R < 2.0 * h / (1.0 - MIDDLE):
-            raise UserInputError(f"The lid's radius {R * 1e3:g} mm leaves no middle two gaps clear "
-                                 f"of the film's rims at gap {h * 1e3:g} mm; use --radius-mm "
-                                 f"{math.ceil(2e4 * h / (1.0 - MIDDLE)) / 10:g} or more.")
         if self.V == 0.0 and self.G == 0.0:
             raise UserInputError("Nothing drives the Couette film: give the lid a speed "
                                  "(--speed-mm-s) or the film a pressure gradient "
                                  "(--gradient-pa-mm).")
-        layers = run.wall_layers()
-        gap = round(h / dx) * dx
-        film = lattice_block([-R, -R, 0.0], [R, R, gap], dx)
-        film = film[np.hypot(film[:, 0], film[:, 1]) < R]
-        reach = R + (layers + 1) * dx
-        plate = lattice_block([-reach, -reach, -layers * dx], [reach, reach, 0.0], dx)
-        lid = lattice_block([-R, -R, gap], [R, R, gap + layers * dx], dx)
-        lid = lid[np.hypot(lid[:, 0], lid[:, 1]) < R]
-        lid[:, 2] += self.lift * dx
-        slide = np.tile([self.V, 0.0, 0.0], (len(lid), 1))
-        pad = (layers + 3) * dx
-        rho = material.density_kg_m3
+        dx = run.spacing_m
+        f = disc_film(self.R, self.h, run, "Couette film", lift_m=self.lift * dx)
+        if self.R < 2.0 * self.h / (1.0 - MIDDLE):
+            raise UserInputError(f"The lid's radius {self.R * 1e3:g} mm leaves no middle two gaps "
+                                 f"clear of the film's rims at gap {self.h * 1e3:g} mm; use "
+                                 f"--radius-mm {math.ceil(2e4 * self.h / (1.0 - MIDDLE)) / 10:g} "
+                                 "or more.")
+        gap, reach, pad = f.gap_m, f.reach_m, f.pad_m
         u_p = self.G * gap * gap / (8.0 * material.viscosity_pa_s)
         return ScenePlan(
             name=self.name,
             domain_lo_m=np.array([-reach - pad, -reach - pad, -pad]),
             domain_hi_m=np.array([reach + pad, reach + pad, gap + (self.lift + 1) * dx + pad]),
             t_start_s=0.0, t_end_s=0.0,
-            blocks=[ParticleBlock(film, FLUID),
-                    ParticleBlock(plate, PLATE, wall_depth_m=-plate[:, 2], wall_normal=(0, 0, 1)),
-                    ParticleBlock(lid, NOZZLE, velocity_m_s=slide,
-                                  wall_depth_m=lid[:, 2] - gap - self.lift * dx,
-                                  wall_normal=(0, 0, -1))],
+            blocks=f.blocks([self.V, 0.0, 0.0]),
             section_point_m=np.zeros(3), section_direction=np.array([1.0, 0.0, 0.0]),
             speed_scale_m_s=max(self.V + abs(u_p), 1e-9),
-            drive=((self.G / rho, 0.0, 0.0), -math.inf) if self.G != 0.0 else None,
-            info={"gap_m": gap, "radius_m": R, "speed_m_s": self.V, "gradient_pa_m": self.G,
+            drive=((self.G / material.density_kg_m3, 0.0, 0.0), -math.inf) if self.G != 0.0 else None,
+            info={"gap_m": gap, "radius_m": self.R, "speed_m_s": self.V, "gradient_pa_m": self.G,
                   "lid_lift_m": self.lift * dx, "poiseuille_u_max_m_s": u_p},
         )
 

@@ -17,11 +17,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from taichi_mex.core.state import FLUID, NOZZLE, PLATE
-from taichi_mex.errors import UserInputError
+from taichi_mex.core.state import FLUID, NOZZLE
 from taichi_mex.options import Positive, opt
-from taichi_mex.scenes.base import (ParticleBlock, ScenePlan, coupled_pla_defaults, lattice_block,
-                                    require_coupled_solve)
+from taichi_mex.scenes.base import ScenePlan, coupled_pla_defaults, disc_film, require_coupled_solve
 from taichi_mex.scenes.registry import SceneEntry, register
 
 
@@ -40,33 +38,16 @@ class SqueezeFilmScene:
 
     def plan(self, run, material) -> ScenePlan:
         require_coupled_solve(run, "squeeze film")
-        dx = run.spacing_m
-        R, h = self.R, self.h
-        if abs(h / dx - round(h / dx)) > 1e-6 or round(h / dx) < 2:
-            raise UserInputError(f"The squeeze film's gap {h * 1e3:g} mm must hold a whole number "
-                                 f"(at least 2) of particle layers at {dx * 1e3:g} mm spacing; "
-                                 "change --gap-mm or --spacing-mm.")
-        layers = run.wall_layers()
-        film = lattice_block([-R, -R, 0.0], [R, R, h], dx)
-        film = film[np.hypot(film[:, 0], film[:, 1]) < R]
-        reach = R + (layers + 1) * dx
-        plate = lattice_block([-reach, -reach, -layers * dx], [reach, reach, 0.0], dx)
-        disc = lattice_block([-R, -R, h], [R, R, h + layers * dx], dx)
-        disc = disc[np.hypot(disc[:, 0], disc[:, 1]) < R]
-        down = np.tile([0.0, 0.0, -self.V], (len(disc), 1))
-        pad = (layers + 3) * dx
-        gap = round(h / dx) * dx  # the layers fill the gap exactly
+        f = disc_film(self.R, self.h, run, "squeeze film")
+        reach, pad = f.reach_m, f.pad_m
         return ScenePlan(
             name=self.name,
             domain_lo_m=np.array([-reach - pad, -reach - pad, -pad]),
-            domain_hi_m=np.array([reach + pad, reach + pad, h + pad]),
+            domain_hi_m=np.array([reach + pad, reach + pad, self.h + pad]),
             t_start_s=0.0, t_end_s=0.0,
-            blocks=[ParticleBlock(film, FLUID),
-                    ParticleBlock(plate, PLATE, wall_depth_m=-plate[:, 2], wall_normal=(0, 0, 1)),
-                    ParticleBlock(disc, NOZZLE, velocity_m_s=down, wall_depth_m=disc[:, 2] - gap,
-                                  wall_normal=(0, 0, -1))],
+            blocks=f.blocks([0.0, 0.0, -self.V]),
             section_point_m=np.zeros(3), section_direction=np.array([0.0, 1.0, 0.0]),
-            speed_scale_m_s=self.V, info={"gap_m": gap, "radius_m": R, "speed_m_s": self.V},
+            speed_scale_m_s=self.V, info={"gap_m": f.gap_m, "radius_m": self.R, "speed_m_s": self.V},
         )
 
     def analyse(self, sim) -> dict:
