@@ -587,9 +587,10 @@ class DFSPHOptions:
         "normal its geometry gives (the plate, a nozzle's flat face), the row's melt in reach "
         "fitted along the normal by a parabola through the wall's velocity at its surface "
         "(weighted least squares), shown at the wall particle's depth; Adami's mirror "
-        "elsewhere: the parabola 0.996x, the squeeze film 0.90 (validation/couette). Not yet a "
-        "print's default: on strands it moved widths by -2 to +5 % of the rounded rectangle, "
-        "and two layers across a gap took 1.8x the GMRES iterations (physics/stokes.py)",
+        "elsewhere: the parabola 0.996x, the squeeze film 0.90 (validation/couette). For "
+        "scenes measured by one solve at a fixed geometry only (couette, squeeze-film): a "
+        "film whose walls slid past it blew up at 2 ms under it, so scenes that run in time "
+        "refuse it (physics/stokes.py)",
         check=OneOf("adami", "quadratic"), flag="--wall-ghost")
     stokes_viscous_isotropic_share: float | None = opt(
         None, help="coupled solve without the surface traction: the share of Morris, Fox & "

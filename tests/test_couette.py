@@ -68,3 +68,12 @@ def test_nothing_to_drive_and_odd_gaps_are_refused():
         _film(gap_mm=0.22)
     with pytest.raises(UserInputError, match="radius"):
         _film(radius_mm=0.3)
+
+
+def test_a_run_in_time_refuses_the_quadratic_ghost():
+    """The quadratic ghost is measured on one solve at a fixed geometry; a film whose walls
+    slid past it blew up at 2 ms under it, so a scene that runs in time refuses it up front."""
+    spec = RunSpec.create("print", changes={"run.progress": False, "run.snapshots": False,
+                                            "run.dfsph.stokes_wall_ghost": "quadratic"})
+    with pytest.raises(UserInputError, match="wall-ghost quadratic"):
+        Simulation.from_spec(spec).build()
