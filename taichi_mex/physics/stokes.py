@@ -1023,12 +1023,17 @@ class CoupledStokes:
                     acc[3] += 1.0
 
     @ti.func
+    def _fit_coef(self, i, w, s):
+        """A melt particle's weights in row i's fitted slope and curvature (a, b): weight w,
+        distance s from the wall's surface."""
+        m = self.fit_m[i]
+        return ti.Vector([w * (m[0] * s + m[1] * s * s), w * (m[1] * s + m[2] * s * s)])
+
+    @ti.func
     def _fit_sum_task(self, i, slot, j, xij, acc: ti.template()):
         if self.state.phase[j] == FLUID and j != i:
             w, sj = self._fit_weight(i, j, xij)
-            m = self.fit_m[i]
-            acc[0] += w * (m[0] * sj + m[1] * sj * sj)
-            acc[1] += w * (m[1] * sj + m[2] * sj * sj)
+            acc += self._fit_coef(i, w, sj)
 
     @ti.func
     def _fit_setup(self, n, S: ti.template()):
@@ -1058,42 +1063,38 @@ class CoupledStokes:
                     det = m[0] * m[2] - m[1] * m[1]
                     if m[3] == 0.0 and det > 1e-6 * m[0] * m[2]:
                         self.fit_m[i] = ti.Vector([m[2] / det, -m[1] / det, m[0] / det])
-                        mi = self.fit_m[i]
-                        ac = ti.Vector([w0 * (mi[0] * si + mi[1] * si * si),
-                                        w0 * (mi[1] * si + mi[2] * si * si)])
+                        ac = self._fit_coef(i, w0, si)
                         self.grid.for_each_listed(i, self._fit_sum_task, ac)
                         self.fit_AC[i] = ac
                         self.fit_ok[i] = 1
 
     @ti.func
-    def _fit_slopes(self, n, src: ti.template(), S: ti.template()):
-        """fit_a, fit_b: the fitted slope and curvature of src's velocities (melt only, the
-        walls' velocity part is in the right-hand side) at every fitted row."""
+    def _fit_slope_task(self, i, slot, j, xij, acc: ti.template()):
+        if self.state.phase[j] == FLUID and j != i:
+            w, sj = self._fit_weight(i, j, xij)
+            c = self._fit_coef(i, w, sj)
+            u = self.z[j]
+            for d in ti.static(range(3)):
+                acc[d] += c[0] * u[d]
+                acc[3 + d] += c[1] * u[d]
+
+    @ti.func
+    def _fit_slopes(self, n, S: ti.template()):
+        """fit_a, fit_b: the fitted slope and curvature of z's velocities (melt only, the
+        walls' velocity part is in the right-hand side) at every fitted row; like the walls'
+        ghosts, computed with each product, so after a solve they hold the solution's (its
+        last product is the residual's, at z = X)."""
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
             if self.fit_ok[i] == 1:
-                si = self.fit_s[i]
-                m = self.fit_m[i]
-                w0 = ti.cast(self.K.W(0.0), ti.f64)
-                ui = src[i]
-                ca = w0 * (m[0] * si + m[1] * si * si)
-                cb = w0 * (m[1] * si + m[2] * si * si)
-                a = ti.Vector([ca * ui[0], ca * ui[1], ca * ui[2]])
-                bb = ti.Vector([cb * ui[0], cb * ui[1], cb * ui[2]])
-                xi = self.state.x[i]
-                r = self.grid.row(i)
-                for k in range(self.grid.n_nbr[i]):
-                    j = self.grid.nbr[r + k]
-                    if self.state.phase[j] == FLUID and j != i:
-                        w, sj = self._fit_weight(i, j, xi - self.state.x[j])
-                        ca2 = w * (m[0] * sj + m[1] * sj * sj)
-                        cb2 = w * (m[1] * sj + m[2] * sj * sj)
-                        uj = src[j]
-                        a += ti.Vector([ca2 * uj[0], ca2 * uj[1], ca2 * uj[2]])
-                        bb += ti.Vector([cb2 * uj[0], cb2 * uj[1], cb2 * uj[2]])
-                self.fit_a[i] = a
-                self.fit_b[i] = bb
+                c = self._fit_coef(i, ti.cast(self.K.W(0.0), ti.f64), self.fit_s[i])
+                ui = self.z[i]
+                acc = ti.Vector([c[0] * ui[0], c[0] * ui[1], c[0] * ui[2],
+                                 c[1] * ui[0], c[1] * ui[1], c[1] * ui[2]])
+                self.grid.for_each_listed(i, self._fit_slope_task, acc)
+                self.fit_a[i] = ti.Vector([acc[0], acc[1], acc[2]])
+                self.fit_b[i] = ti.Vector([acc[3], acc[4], acc[5]])
 
     @ti.func
     def _shepard_task(self, b, j, xij, acc: ti.template()):
@@ -1175,7 +1176,7 @@ class CoupledStokes:
             self.grid.for_each_neighbour(b, self._ghost_task, acc)
             self.ghost[b] = acc
         if ti.static(self.quadratic):
-            self._fit_slopes(n, self.z, S)
+            self._fit_slopes(n, S)
         if ti.static(self.traction):
             self._energy(n, S)
 
@@ -2192,8 +2193,6 @@ class CoupledStokes:
             self.affine[None] = 1
             self._energy(n, S)
             self.affine[None] = 0
-        if ti.static(self.quadratic):
-            self._fit_slopes(n, self.X, S)
         f = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         ti.loop_config(serialize=True)  # a fixed order: the force is reproducible to the bit
         for slot in range(n):

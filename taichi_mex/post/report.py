@@ -118,9 +118,10 @@ def law_note(gap_mm: float, config: dict | None) -> str:
 
 
 def lost_melt_where(summary: dict, key: str = "particles_lost") -> str:
-    """Where and when melt was dropped (key 'particles_lost', e.g. '2 through top, t =
-    0.5-1.25 s') or outside the domain's box ('melt_outside_domain', e.g. '2 beyond top, 1
-    beyond x min, t = 0.5-1.25 s'); '' where the run recorded neither."""
+    """Where and when melt was dropped (key 'particles_lost': only positions that are not
+    finite are, e.g. '2 through not finite, t = 0.5-1.25 s') or outside the domain's box
+    ('melt_outside_domain', e.g. '2 beyond top, 1 beyond x min, t = 0.5-1.25 s'); '' where
+    the run recorded neither."""
     where = "through" if key == "particles_lost" else "beyond"
     parts = [f"{n} {where} {face.replace('_', ' ')}"
              for face, n in (summary.get(f"{key}_by_face") or {}).items()]
