@@ -782,6 +782,16 @@ class RunOptions:
                 f"run.dfsph.stokes_viscous_isotropic_share = {share} sets the pair sum's "
                 "viscous term, which the surface traction's strain-energy form replaces: turn "
                 "run.dfsph.stokes_surface_traction off (--no-surface-traction), or leave it unset.")
+        if d.stokes_wall_ghost == "quadratic" and (not coupled or d.stokes_surface_traction):
+            # the ghost lives in the pair sum's wall terms; the strain-energy form builds its
+            # adjoint sums on Adami's Shepard weights, so it would run the mirror under the name
+            raise UserInputError(
+                "run.dfsph.stokes_wall_ghost = 'quadratic' is the coupled solve's pair sum's "
+                "wall ghost: " + ("this run does not use the coupled solve (--creeping-solve "
+                                  "coupled, --scheme dfsph)" if not coupled else
+                                  "with the surface traction on, the strain-energy form keeps "
+                                  "Adami's mirror") +
+                ". Add --no-surface-traction, or leave --wall-ghost at adami.")
         if d.stokes_inner_operator == "system":
             # the inner solve exists only in the coupled solve's block-triangular
             # preconditioner, and without the traction the system's block is the pair sum:

@@ -167,11 +167,22 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
 
 
 def test_the_reports_law_names_the_nozzles_face():
-    """The report compares sections with the slicer's rounded rectangle and says that the law
-    has no nozzle in it and which face the run's melt spread under (the width follows it)."""
+    """The report compares sections with the slicer's rounded rectangle, names the face the
+    run's melt spread under and says that the excess width is the solver's."""
     from taichi_mex.post.report import law_note
 
     note = law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": 0.6}})
     assert "g = 0.2 mm" in note and "0.6 mm across" in note
     assert "a nozzle's flat face" in law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": None}})
     assert "a nozzle's flat face" in law_note(0.2, None)
+    assert "solver" in note
+
+
+def test_lost_and_outside_melt_are_worded_by_where_they_went():
+    from taichi_mex.post.report import lost_melt_where
+
+    lost = {"particles_lost_by_face": {"not_finite": 2}, "particles_lost_between_s": [0.5, 1.25]}
+    assert lost_melt_where(lost) == "2 with a position not finite, t = 0.5-1.25 s"
+    out = {"melt_outside_domain_by_face": {"top": 2, "x_min": 1}}
+    assert lost_melt_where(out, "melt_outside_domain") == "2 beyond top, 1 beyond x min"
+    assert lost_melt_where({}) == ""

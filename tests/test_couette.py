@@ -70,6 +70,16 @@ def test_nothing_to_drive_and_odd_gaps_are_refused():
         _film(radius_mm=0.3)
 
 
+def test_the_quadratic_ghost_is_refused_where_it_would_not_run():
+    """The ghost is the pair sum's: with the surface traction on (the films' default) the
+    strain-energy form would keep Adami's mirror under its name, so the run is refused."""
+    with pytest.raises(UserInputError, match="no-surface-traction"):
+        RunSpec.create("squeeze-film", changes={"run.dfsph.stokes_wall_ghost": "quadratic"})
+    with pytest.raises(UserInputError, match="creeping-solve coupled"):
+        RunSpec.create("collapse", changes={"run.dfsph.stokes_wall_ghost": "quadratic",
+                                            "run.dfsph.creeping_solve": "split"})
+
+
 def test_a_run_in_time_refuses_the_quadratic_ghost():
     """The quadratic ghost is measured on one solve at a fixed geometry; a film whose walls
     slid past it blew up at 2 ms under it, so a scene that runs in time refuses it up front."""

@@ -106,25 +106,30 @@ def _sections(meso: dict | None, plan, config) -> str:
 
 
 def law_note(gap_mm: float, config: dict | None) -> str:
-    """What the sections' width is compared with, and why a strand need not meet it: the law
-    has no nozzle in it, and the strand's width follows the nozzle's face (validation/strands)."""
+    """What the sections' width is compared with, and how far this solver's strands are from
+    it (validation/strands): the excess is the solver's, not the law's."""
     face = ((config or {}).get("scene_options") or {}).get("nozzle_tip_outer_diameter_mm")
-    under = f"this run's nozzle face, {face:.3g} mm across," if face else "a nozzle's flat face"
+    under = f"this run's nozzle face ({face:.3g} mm across)" if face else "a nozzle's flat face"
     return (f"Law: W = A/g + (1 − π/4) g with the bead's own area A and the layer height "
             f"g = {gap_mm:.3g} mm (the slicer's rounded rectangle; Comminal et al., Addit. Manuf. "
-            f"20, 2018). It has no nozzle in it: the melt spreads under {under} before it leaves, "
-            "and the strand comes out the wider the wider the face (validation/strands: the "
-            "bundled bead +6 / +11 / +20 % over the law under 0.6 / 1.0 / 1.4 mm faces).")
+            f"20, 2018): a creeping strand that fills the gap under {under} leaves with a flat "
+            "top at g. This solver's strands leave the face lower than g and wider than the law "
+            "(validation/strands: the bundled bead at standard spacing +9 / +12 / +16 % under "
+            "0.6 / 1.0 / 1.4 mm faces): the melt under the face's trailing half carries about "
+            "three quarters of a full gap's flow, an error of the solver that is still open.")
 
 
 def lost_melt_where(summary: dict, key: str = "particles_lost") -> str:
     """Where and when melt was dropped (key 'particles_lost': only positions that are not
-    finite are, e.g. '2 through not finite, t = 0.5-1.25 s') or outside the domain's box
-    ('melt_outside_domain', e.g. '2 beyond top, 1 beyond x min, t = 0.5-1.25 s'); '' where
-    the run recorded neither."""
-    where = "through" if key == "particles_lost" else "beyond"
-    parts = [f"{n} {where} {face.replace('_', ' ')}"
-             for face, n in (summary.get(f"{key}_by_face") or {}).items()]
+    finite are, e.g. '2 with a position not finite, t = 0.5-1.25 s') or outside the domain's
+    box ('melt_outside_domain', e.g. '2 beyond top, 1 beyond x min, t = 0.5-1.25 s'); ''
+    where the run recorded neither."""
+    def where(face: str) -> str:
+        if face == "not_finite":
+            return "with a position not finite"
+        return ("through " if key == "particles_lost" else "beyond ") + face.replace("_", " ")
+
+    parts = [f"{n} {where(face)}" for face, n in (summary.get(f"{key}_by_face") or {}).items()]
     span = summary.get(f"{key}_between_s") or []
     if len(span) == 2:
         parts.append(f"t = {span[0]:.4g}-{span[1]:.4g} s")
