@@ -592,6 +592,16 @@ class DFSPHOptions:
         "film whose walls slid past it blew up at 2 ms under it, so scenes that run in time "
         "refuse it (physics/stokes.py)",
         check=OneOf("adami", "quadratic"), flag="--wall-ghost")
+    stokes_surface_rows: str = opt(
+        "continuity", help="coupled solve without the surface traction: what the rows of melt "
+        "on the free surface (Marrone et al.'s 2010 test) hold. 'continuity': the same "
+        "continuity row as the melt inside, which leaves their pressure to it (measured at the "
+        "bundled bead's free surface: a median -207 kPa where traction-free asks -68, "
+        "validation/strands); 'traction': the traction-free condition -p + 2 mu n.D.n = 0 in "
+        "its place, n Marrone's normal and D from Bonet & Lok's corrected gradient of the "
+        "velocities (the free-surface rows of incompressible SPH, Shao & Lo 2003, with the "
+        "viscous normal stress in the pressure; physics/stokes.py, \"Free-surface rows\")",
+        check=OneOf("continuity", "traction"), flag="--surface-rows")
     stokes_viscous_isotropic_share: float | None = opt(
         None, help="coupled solve without the surface traction: the share of Morris, Fox & "
         "Zhu's (1997) Laplacian of the whole velocity difference in each viscous pair term, the "
@@ -792,6 +802,14 @@ class RunOptions:
                                   "with the surface traction on, the strain-energy form keeps "
                                   "Adami's mirror") +
                 ". Add --no-surface-traction, or leave --wall-ghost at adami.")
+        if d.stokes_surface_rows == "traction" and (not coupled or d.stokes_surface_traction):
+            raise UserInputError(
+                "run.dfsph.stokes_surface_rows = 'traction' sets the pair sum's free-surface "
+                "rows: " + ("this run does not use the coupled solve (--creeping-solve coupled, "
+                            "--scheme dfsph)" if not coupled else
+                            "with the surface traction on, the strain-energy form holds the "
+                            "free surface traction-free already") +
+                ". Add --no-surface-traction, or leave --surface-rows at continuity.")
         if d.stokes_inner_operator == "system":
             # the inner solve exists only in the coupled solve's block-triangular
             # preconditioner, and without the traction the system's block is the pair sum:

@@ -168,14 +168,14 @@ def test_run_warnings_name_lost_melt_and_unconverged_viscous_solves():
 
 def test_the_reports_law_names_the_nozzles_face():
     """The report compares sections with the slicer's rounded rectangle, names the face the
-    run's melt spread under and says that the excess width is the solver's."""
+    run's melt spread under and says how far this solver's strands are from it."""
     from taichi_mex.post.report import law_note
 
     note = law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": 0.6}})
     assert "g = 0.2 mm" in note and "0.6 mm across" in note
     assert "a nozzle's flat face" in law_note(0.2, {"scene_options": {"nozzle_tip_outer_diameter_mm": None}})
     assert "a nozzle's flat face" in law_note(0.2, None)
-    assert "solver" in note
+    assert "This solver's strands" in note
 
 
 def test_lost_and_outside_melt_are_worded_by_where_they_went():

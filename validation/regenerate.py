@@ -610,6 +610,17 @@ CASES = {
                                                                    ("real viscosity", "off"))],
         COUPLED_STRAND + [("viscosity x", num("viscosity_scale", "{:.3g}"))],
         folder="strands", tag="viscosity"),
+    "strands_surface_rows": Case(
+        "the free surface's rows under the pair sum: continuity (a print's default) against "
+        "the traction-free condition -p + 2 mu n.D.n = 0 (--surface-rows traction), the "
+        "bundled bead at draft and standard: does the surface's pull widen the strand?",
+        [(f"gap 0.20, width 0.45, {res}, {rows}",
+          strand(0.2, 0.45, "--resolution", res, "--surface-rows", rows),
+          {"gap_mm": 0.2, "width_mm": 0.45})
+         for res in ("draft", "standard") for rows in ("continuity", "traction")],
+        [(f"0.1 mm, {rows}", strand(0.2, 0.45, "--resolution", 0.1, "--surface-rows", rows),
+          {"gap_mm": 0.2, "width_mm": 0.45}) for rows in ("continuity", "traction")],
+        COUPLED_STRAND, folder="strands", tag="surface_rows"),
     "strands_face": Case(
         "coupled strands under nozzle faces of 0.6, 1.0 (the default) and 1.4 mm outer diameter "
         "and none (the bore's wall alone): the melt spreads under the face before it leaves, so "
@@ -806,7 +817,11 @@ CASES = {
         [(f"{dx} mm ({0.5 / dx:.0f} per radius), source {source}",
           scene("extension", "--spacing-mm", dx, "--density-source", source))
          for dx, source in ((0.125, "none"), (0.1, "none"), (0.125, "summation"),
-                            (0.125, "two-way"))],
+                            (0.125, "two-way"))]
+        + [(f"0.125 mm (4 per radius), source none, the pair sum, surface rows {rows}",
+            scene("extension", "--spacing-mm", 0.125, "--density-source", "none",
+                  "--no-surface-traction", "--surface-rows", rows))
+           for rows in ("continuity", "traction")],
         [("0.125 mm, strain 0.1", scene("extension", "--spacing-mm", 0.125, "--strain", 0.1))],
         COMMON + [(f"mid R / exact at strain {e}", strain_ratio(e)) for e in (0.1, 0.2, 0.3, 0.4, 0.5)]
         + [("mid pressure / (-mu e), first sample", lambda r: f"{r['mid_pressure_pa'][1] / (-r['viscosity_pa_s'] * r['strain_rate_1_s']):.2f}"
@@ -825,6 +840,8 @@ CASES = {
              ("traction", 0.025, ["--surface-traction"]),
              ("the pair sum (prints)", 0.05, []),
              ("the pair sum (prints)", 0.0333, []),
+             ("the pair sum, traction-free surface rows", 0.05, ["--surface-rows", "traction"]),
+             ("the pair sum, traction-free surface rows", 0.0333, ["--surface-rows", "traction"]),
              ("Weiler's sum alone", 0.05, ["--viscous-isotropic-share", 0]),
              ("Morris", 0.05, ["--viscous-isotropic-share", 1]),
              ("even blend", 0.05, ["--viscous-isotropic-share", 0.5]))],

@@ -221,6 +221,27 @@ streamline's swell, Nickell's 1.13), none kept:
   bead's melt under 0.9 rho0 with this source, 41 % without) or the traction's flow itself
   does, and which one is open.
 
+Free-surface rows (``stokes_surface_rows``, the pair sum only): by default a row on the free
+surface (Marrone's flag 1) keeps the continuity row, which leaves its pressure to whatever
+continuity asks; on the bundled bead at standard spacing, 1 mm around the nozzle, such rows
+stood at a median -207 kPa where the traction-free condition their own velocities ask is -68
+(validation/strands, trace_face.py). With ``"traction"`` the row is instead
+s_ii (k_i - 2 nu_i n.D_i.n) = 0, the free-surface rows of incompressible SPH (Shao & Lo 2003
+set p = 0 there) with the viscous normal stress the issue's traction-free surface carries:
+n Marrone's normal, D_i the symmetric part of Bonet & Lok's corrected gradient of the
+velocities (walls at their ghosts), so 2 nu n.D.n = sum_j ((u_j - u_i) . n) (q_i . V grad W_ij)
+with q_i = 2 nu M_i^-T n, linear in u; s_ii, the row's Schur diagonal, scales it so that a
+pressure error weighs in it as in a continuity row (the preconditioner and the stop read it
+unchanged). The row is not symmetric with anything; GMRES does not need it to be. Measured
+(2026-12-07, 2 cores, against the continuity rows): the die's jet at 4 per radius carries
+the die's flux (swell read by continuity 1.177, the streamline 1.170, the lattice 1.144,
+against 1.248 / 1.117 / 1.074: tests/test_die_swell.py); the extension filament (0.125 mm,
+no source) within 0.1 % of R0 exp(-e t / 2) to a strain of 0.15 and 0.3 % at 0.2 (0.16-0.30 %),
+its middle's pressure 1.82x Trouton's -mu e against 2.24x; but the bundled bead 0.535 / 0.553 mm wide at draft / standard (+17 /
++19 % over the rounded rectangle, against +6 / +12 %) at 45 / 52 GMRES iterations a step
+(19 / 20), the melt under the face carrying the same 0.74 of a full gap's flow. So the
+surface's pull is not what widens the strands; the option stays off by default.
+
 Compressibility: the continuity rows are the melt's rate form of p = K (rho / rho0 - 1),
 dt D(u) - (k - k_n) / c^2 = dt s with c^2 = K / rho0 (material.bulk_modulus_pa; Tait's law
 gives K ~ 1-2 GPa for polymer melts). With incompressible rows a fragment of melt that the
@@ -543,6 +564,10 @@ class CoupledStokes:
         self.tol_rho = float(opts.stokes_density_tolerance)
         self.max_iterations = int(opts.stokes_max_iterations)
         self.traction = bool(opts.stokes_surface_traction)
+        # the pair sum's free surface (see "Free-surface rows"): Marrone's surface rows take
+        # -p + 2 mu n.D.n = 0 in place of continuity
+        self.surface_rows = (getattr(opts, "stokes_surface_rows", "continuity") == "traction"
+                             and not self.traction)
         #: a body force on the melt above a plane: (ax, ay, az) in m/s^2 and the plane's
         #: height in state coordinates (m); a scene that drives its melt through a die by a
         #: pressure drop sets it (ScenePlan.drive); none by default
@@ -592,7 +617,15 @@ class CoupledStokes:
         # multiplied (stored times that inverse, see _energy), a wall's adjoint sum, the
         # resulting acceleration and its constant part from the walls' velocities
         shape = cap if self.traction else 1
-        self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=shape)
+        self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=cap if (self.traction or self.surface_rows) else 1)
+        # the free-surface rows: whether row i is one, its outward normal n, 2 nu M^-T n (so
+        # that 2 nu n.D.n = sum_j ((u_j - u_i) . n) (q . V grad W_ij)) and the walls' constant
+        # share of that sum
+        scap = cap if self.surface_rows else 1
+        self.srow = ti.field(ti.i32, shape=scap)
+        self.sn = ti.Vector.field(3, ti.f64, shape=scap)
+        self.sq = ti.Vector.field(3, ti.f64, shape=scap)
+        self.s_rhs = ti.field(ti.f64, shape=scap)
         self.Ag = ti.Matrix.field(3, 3, ti.f64, shape=shape)
         self.T = ti.Matrix.field(3, 3, ti.f64, shape=shape)
         self.hg = ti.Vector.field(3, ti.f64, shape=shape)
@@ -747,6 +780,9 @@ class CoupledStokes:
                 for d in ti.static(range(3)):
                     acc[9 + d] += w[d]
                 acc[12] += vb.dot(self._corrected(i, VF * xij))
+                if ti.static(self.surface_rows):
+                    if self.srow[i] == 1:
+                        acc[13] += gb.dot(self.sn[i]) * self.sq[i].dot(ti.cast(VF * xij, ti.f64))
         self.cF[i, slot] = cF
         self.VF[i, slot] = VF
         if ti.static(self.flexible):
@@ -1146,6 +1182,9 @@ class CoupledStokes:
                 for d in ti.static(range(3)):
                     acc[3 + d] += g[d]
             acc[6] += (ui - uj).dot(gi)
+            if ti.static(self.surface_rows):
+                if self.srow[i] == 1:
+                    acc[7] += (uj - ui).dot(self.sn[i]) * self.sq[i].dot(ti.cast(gV, ti.f64))
         else:
             ug = ti.Vector([0.0, 0.0, 0.0], ti.f64)
             if self.shepard[j] > 0.0:
@@ -1164,6 +1203,9 @@ class CoupledStokes:
                 for d in ti.static(range(3)):
                     acc[3 + d] += g[d]
             acc[6] += ui.dot(gi)
+            if ti.static(self.surface_rows):
+                if self.srow[i] == 1:
+                    acc[7] += (-ug - ui).dot(self.sn[i]) * self.sq[i].dot(ti.cast(gV, ti.f64))
 
     @ti.func
     def _viscous_of_z(self, n, S: ti.template()):
@@ -1189,7 +1231,7 @@ class CoupledStokes:
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
-            acc = ti.Vector.zero(ti.f64, 7)
+            acc = ti.Vector.zero(ti.f64, 8)
             if ti.static(pressure):
                 self.grid.for_each_listed(i, self._apply_task, acc)
             else:
@@ -1202,9 +1244,12 @@ class CoupledStokes:
             gk = ti.Vector([dt * acc[3], dt * acc[4], dt * acc[5]])
             if ti.static(not pressure):
                 gk = self.cg_g[slot]
+            krow = self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])
+            if ti.static(self.surface_rows):
+                if self.srow[i] == 1:
+                    krow = (zi[3] - acc[7]) / self.sigma[i]
             out[slot] = ti.Vector([zi[0] - dt * acc[0] + gk[0], zi[1] - dt * acc[1] + gk[1],
-                                   zi[2] - dt * acc[2] + gk[2],
-                                   self.dx * (acc[6] - self.c2inv[None] / dt * zi[3])])
+                                   zi[2] - dt * acc[2] + gk[2], krow])
 
     @ti.func
     def _precondition(self, n, v: ti.template(), S: ti.template()):
@@ -1573,12 +1618,27 @@ class CoupledStokes:
                 self.surf_rhs[i] = self.eacc[i]
         if ti.static(self.quadratic):
             self._fit_setup(n, S)
+        if ti.static(self.surface_rows):
+            self._surface_setup(n, S)
+            ti.loop_config(serialize=S > 0)
+            for slot in range(n):
+                i = self.rows.index[slot]
+                self.srow[i] = 0
+                self.sq[i] = ti.Vector.zero(ti.f64, 3)
+                nrm = ti.cast(self.surface.normal[i], ti.f64)
+                if self.surface.flag[i] == 1 and nrm.norm() > 0.5:
+                    nu = ti.cast(self.visc.eta_of(i), ti.f64) / self.rho0
+                    self.srow[i] = 1
+                    self.sn[i] = nrm
+                    self.sq[i] = 2.0 * nu * (self.Minv[i].transpose() @ nrm)
         g = ti.Vector([gx, gy, gz])
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
-            acc = ti.Vector.zero(ti.f64, 13)
+            acc = ti.Vector.zero(ti.f64, 14)
             self.grid.for_each_listed(i, self._setup_task, acc)
+            if ti.static(self.surface_rows):
+                self.s_rhs[i] = acc[13]
             sq = self._square(acc, 0)  # Weiler's sum's diagonal block
             b = ti.Matrix.identity(ti.f64, 3) - dt * sq  # B on Weiler's rows (the form's below)
             weiler = b.inverse()
@@ -1634,6 +1694,15 @@ class CoupledStokes:
             s_ii = (self.Binv[i] @ Gi).dot(Gi) + acc[3]
             s_ii = dt * self.dx * s_ii + self.dx * self.c2inv[None] / dt
             self.sigma[i] = 1.0 / s_ii if s_ii > 0.0 else 0.0
+            if ti.static(self.surface_rows):
+                # the row s_ii (k - 2 nu n.D.n) = 0: a pressure error weighs in it as in a
+                # continuity row, so the Schur preconditioner and the stop read it alike
+                if self.srow[i] == 1:
+                    if s_ii > 0.0:
+                        r = self.rhs[i]
+                        self.rhs[i] = ti.Vector([r[0], r[1], r[2], s_ii * self.s_rhs[i]])
+                    else:
+                        self.srow[i] = 0
 
     @ti.func
     def _pressure_error(self, n, S: ti.template()):
@@ -1903,6 +1972,11 @@ class CoupledStokes:
             raise RuntimeError(f"{n} melt rows exceed the {self.rows_cap} the coupled solve was "
                                "sized for: only the inlet makes melt, and the plan counts it")
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
+        if self.surface_rows:
+            if self.surface is None:
+                raise RuntimeError("the free-surface rows read Marrone's flags: attach_surface() "
+                                   "before the first solve")
+            self.surface.current()
         if self.two_way:
             if self.surface is None:
                 raise RuntimeError("the two-way density source reads the free-surface flags: "

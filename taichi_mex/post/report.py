@@ -107,7 +107,7 @@ def _sections(meso: dict | None, plan, config) -> str:
 
 def law_note(gap_mm: float, config: dict | None) -> str:
     """What the sections' width is compared with, and how far this solver's strands are from
-    it (validation/strands): the excess is the solver's, not the law's."""
+    it (validation/strands)."""
     face = ((config or {}).get("scene_options") or {}).get("nozzle_tip_outer_diameter_mm")
     under = f"this run's nozzle face ({face:.3g} mm across)" if face else "a nozzle's flat face"
     return (f"Law: W = A/g + (1 − π/4) g with the bead's own area A and the layer height "
@@ -116,7 +116,8 @@ def law_note(gap_mm: float, config: dict | None) -> str:
             "top at g. This solver's strands leave the face lower than g and wider than the law "
             "(validation/strands: the bundled bead at standard spacing +9 / +12 / +16 % under "
             "0.6 / 1.0 / 1.4 mm faces): the melt under the face's trailing half carries about "
-            "three quarters of a full gap's flow, an error of the solver that is still open.")
+            "three quarters of a full gap's flow. Whether a face that wide spreads a real strand "
+            "so, or the solver does, is not yet settled.")
 
 
 def lost_melt_where(summary: dict, key: str = "particles_lost") -> str:

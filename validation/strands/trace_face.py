@@ -3,7 +3,7 @@ under the face's trailing half against the plane Couette-Poiseuille profile that
 full gap's flow, the pressure under the face, and the free surface's pressure against the
 traction-free condition p = 2 mu n.D.n that its velocities ask for.
 
-    python validation/strands/trace_face.py [--time-s 0.40] [--resolution standard]
+    python validation/strands/trace_face.py [--time-s 0.40] [--resolution standard] [--set KEY=VALUE]
 
 Runs the print through the API to the given print time (about a minute at standard on 2
 cores) and prints the figures validation/strands/README.md quotes ("Where the strand thins").
@@ -18,11 +18,11 @@ from taichi_mex.sim.simulation import Simulation
 from taichi_mex.spec import RunSpec
 
 
-def state_at(time_s: float, resolution: str) -> dict:
+def state_at(time_s: float, resolution: str, changes: dict) -> dict:
     dx_mm = RESOLUTION_PRESETS[resolution]["run"]["spacing_mm"]
     spec = RunSpec.create("print", changes={"run.progress": False, "run.snapshots": False,
                                             "run.spacing_mm": dx_mm,
-                                            "scene.until_s": time_s + 1e-4})
+                                            "scene.until_s": time_s + 1e-4, **changes})
     sim = Simulation.from_spec(spec)
     got = {}
 
@@ -55,8 +55,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--time-s", type=float, default=0.40)
     ap.add_argument("--resolution", default="standard")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a run option, e.g. run.dfsph.stokes_surface_rows=traction")
     a = ap.parse_args()
-    d = state_at(a.time_s, a.resolution)
+    d = state_at(a.time_s, a.resolution, dict(kv.split("=", 1) for kv in a.set))
     x, v, ph, k = d["x"], d["v"], d["phase"], d["k"] * d["rho0"]
     noz = ph == NOZZLE
     vn = v[noz].mean(0)
