@@ -239,8 +239,12 @@ against 1.248 / 1.117 / 1.074: tests/test_die_swell.py); the extension filament 
 no source) within 0.1 % of R0 exp(-e t / 2) to a strain of 0.15 and 0.3 % at 0.2 (0.16-0.30 %),
 its middle's pressure 1.82x Trouton's -mu e against 2.24x; but the bundled bead 0.535 / 0.553 mm wide at draft / standard (+17 /
 +19 % over the rounded rectangle, against +6 / +12 %) at 45 / 52 GMRES iterations a step
-(19 / 20), the melt under the face carrying the same 0.74 of a full gap's flow. So the
-surface's pull is not what widens the strands; the option stays off by default.
+(19 / 20), the melt under the face carrying the same 0.74 of a full gap's flow; and the
+surface's particles, which no continuity row holds any more, compress: at the end kernel
+sums up to 1.15 / 1.22 rho0, the material area +1 / +7 % (validation/strands, "The free
+surface's rows under the pair sum"). So the surface's pull is not what widens the strands,
+and a surface row needs its volume kept too before it can be a print's default; the option
+stays off.
 
 Compressibility: the continuity rows are the melt's rate form of p = K (rho / rho0 - 1),
 dt D(u) - (k - k_n) / c^2 = dt s with c^2 = K / rho0 (material.bulk_modulus_pa; Tait's law
