@@ -235,7 +235,8 @@ pressure error weighs in it as in a continuity row (the preconditioner and the s
 unchanged). The row is not symmetric with anything; GMRES does not need it to be. Measured
 (2026-12-07, 2 cores, against the continuity rows): the die's jet at 4 per radius carries
 the die's flux (swell read by continuity 1.177, the streamline 1.170, the lattice 1.144,
-against 1.248 / 1.117 / 1.074: tests/test_die_swell.py); the extension filament (0.125 mm,
+against 1.248 / 1.117 / 1.074: tests/test_die_swell.py; at 6 per radius its surface
+iteration still cycles, 1.255-1.286); the extension filament (0.125 mm,
 no source) at 1.000 / 1.003 / 1.014 of R0 exp(-e t / 2) at strains 0.1 / 0.2 / 0.3 (0.997 /
 0.998 / 1.007), its middle's pressure 1.82x Trouton's -mu e against 2.24x; but the bundled bead 0.535 / 0.553 mm wide at draft / standard (+17 /
 +19 % over the rounded rectangle, against +6 / +12 %) at 45 / 52 GMRES iterations a step
