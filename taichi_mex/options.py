@@ -784,35 +784,28 @@ class RunOptions:
         validate_fields(self, "run.")
         d = self.dfsph
         coupled = self.scheme == "dfsph" and d.creeping_solve == "coupled"
-        share = d.stokes_viscous_isotropic_share
-        if share is not None and not coupled:
-            raise UserInputError(
-                f"run.dfsph.stokes_viscous_isotropic_share = {share} sets the coupled solve's "
-                "viscous pair term; this run does not use the coupled solve: add "
-                "--creeping-solve coupled (and --scheme dfsph), or leave it unset.")
-        if share is not None and d.stokes_surface_traction:
-            raise UserInputError(
-                f"run.dfsph.stokes_viscous_isotropic_share = {share} sets the pair sum's "
-                "viscous term, which the surface traction's strain-energy form replaces: turn "
-                "run.dfsph.stokes_surface_traction off (--no-surface-traction), or leave it unset.")
-        if d.stokes_wall_ghost == "quadratic" and (not coupled or d.stokes_surface_traction):
-            # the ghost lives in the pair sum's wall terms; the strain-energy form builds its
-            # adjoint sums on Adami's Shepard weights, so it would run the mirror under the name
-            raise UserInputError(
-                "run.dfsph.stokes_wall_ghost = 'quadratic' is the coupled solve's pair sum's "
-                "wall ghost: " + ("this run does not use the coupled solve (--creeping-solve "
-                                  "coupled, --scheme dfsph)" if not coupled else
-                                  "with the surface traction on, the strain-energy form keeps "
-                                  "Adami's mirror") +
-                ". Add --no-surface-traction, or leave --wall-ghost at adami.")
-        if d.stokes_surface_rows == "traction" and (not coupled or d.stokes_surface_traction):
-            raise UserInputError(
-                "run.dfsph.stokes_surface_rows = 'traction' sets the pair sum's free-surface "
-                "rows: " + ("this run does not use the coupled solve (--creeping-solve coupled, "
-                            "--scheme dfsph)" if not coupled else
-                            "with the surface traction on, the strain-energy form holds the "
-                            "free surface traction-free already") +
-                ". Add --no-surface-traction, or leave --surface-rows at continuity.")
+        # settings of the pair sum (the coupled solve without the surface traction), each
+        # refused where it would change nothing or run something else under its name
+        pair_sum_only = (
+            ("stokes_viscous_isotropic_share", d.stokes_viscous_isotropic_share is not None,
+             "the pair sum's viscous term, which the surface traction's strain-energy form "
+             "replaces", "leave it unset"),
+            ("stokes_wall_ghost", d.stokes_wall_ghost == "quadratic",
+             "the pair sum's wall ghost; the strain-energy form builds its adjoint sums on "
+             "Adami's mirror", "leave --wall-ghost at adami"),
+            ("stokes_surface_rows", d.stokes_surface_rows == "traction",
+             "the pair sum's free-surface rows; the strain-energy form holds the surface "
+             "traction-free already", "leave --surface-rows at continuity"))
+        for name, on, what, reset in pair_sum_only:
+            if not on:
+                continue
+            named = f"run.dfsph.{name} = {getattr(d, name)!r} sets {what}"
+            if not coupled:
+                raise UserInputError(f"{named}; this run does not use the coupled solve: add "
+                                     f"--creeping-solve coupled (and --scheme dfsph), or {reset}.")
+            if d.stokes_surface_traction:
+                raise UserInputError(f"{named}: turn run.dfsph.stokes_surface_traction off "
+                                     f"(--no-surface-traction), or {reset}.")
         if d.stokes_inner_operator == "system":
             # the inner solve exists only in the coupled solve's block-triangular
             # preconditioner, and without the traction the system's block is the pair sum:
