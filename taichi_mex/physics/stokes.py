@@ -238,8 +238,9 @@ the die's flux (swell read by continuity 1.177, the streamline 1.170, the lattic
 against 1.248 / 1.117 / 1.074: tests/test_die_swell.py; at 6 per radius its surface
 iteration still cycles, 1.255-1.286); the extension filament (0.125 mm,
 no source) at 1.000 / 1.003 / 1.014 of R0 exp(-e t / 2) at strains 0.1 / 0.2 / 0.3 (0.997 /
-0.998 / 1.007), its middle's pressure 1.82x Trouton's -mu e against 2.24x; but the bundled bead 0.535 / 0.553 mm wide at draft / standard (+17 /
-+19 % over the rounded rectangle, against +6 / +12 %) at 45 / 52 GMRES iterations a step
+0.998 / 1.007), its middle's pressure 1.82x Trouton's -mu e against 2.24x; but the bundled bead 0.535 /
+0.553 mm wide at draft / standard (+19 / +23 % over the rounded rectangle of its own area,
+against +6 / +12 %) at 45 / 52 GMRES iterations a step
 (19 / 20), the melt under the face carrying the same 0.74 of a full gap's flow; and the
 surface's particles, which no continuity row holds any more, compress: at the end kernel
 sums up to 1.15 / 1.22 rho0, the material area +1 / +7 % (validation/strands, "The free
@@ -571,8 +572,7 @@ class CoupledStokes:
         self.traction = bool(opts.stokes_surface_traction)
         # the pair sum's free surface (see "Free-surface rows"): Marrone's surface rows take
         # -p + 2 mu n.D.n = 0 in place of continuity
-        self.surface_rows = (getattr(opts, "stokes_surface_rows", "continuity") == "traction"
-                             and not self.traction)
+        self.surface_rows = opts.stokes_surface_rows == "traction" and not self.traction
         #: a body force on the melt above a plane: (ax, ay, az) in m/s^2 and the plane's
         #: height in state coordinates (m); a scene that drives its melt through a die by a
         #: pressure drop sets it (ScenePlan.drive); none by default
