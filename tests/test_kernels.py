@@ -56,6 +56,7 @@ def test_taichi_kernel_matches_numpy_and_derivative(taichi_f64, kind, factor):
     np.testing.assert_allclose(w, k.W_np(r), rtol=1e-12, atol=1e-15)
     fd = np.gradient(k.W_np(r), r)  # dW/dr by finite differences
     np.testing.assert_allclose(g[1:-1, 0], fd[1:-1], atol=2e-3 * np.abs(fd).max())
+    np.testing.assert_allclose(k.F_np(r[1:]) * r[1:], g[1:, 0], rtol=1e-12, atol=1e-15)
 
 
 # lattice quadrature of the kernel moments is off by ~2 % at these support radii

@@ -78,3 +78,15 @@ class Kernel:
             return np.where(q <= 0.5, self.sigma * (6 * q**2 * (q - 1) + 1),
                             np.where(q < 1, 2 * self.sigma * np.clip(1 - q, 0, None) ** 3, 0.0))
         return np.where(q < 1, self.sigma * np.clip(1 - q, 0, None) ** 4 * (1 + 4 * q), 0.0)
+
+    def F_np(self, r):
+        """F(r) = (dW/dr) / r, as ``F``."""
+        import numpy as np
+
+        q = np.asarray(r, dtype=np.float64) / self.H
+        H2 = self.H * self.H
+        if self.kind == "cubic":
+            return np.where(q <= 0.5, self.grad_sigma * (3 * q - 2) / H2,
+                            np.where(q < 1, -self.grad_sigma * np.clip(1 - q, 0, None) ** 2
+                                     / (H2 * np.maximum(q, 1e-300)), 0.0))
+        return np.where(q < 1, -self.grad_sigma * np.clip(1 - q, 0, None) ** 3 / H2, 0.0)

@@ -622,7 +622,7 @@ class CoupledStokes:
         # multiplied (stored times that inverse, see _energy), a wall's adjoint sum, the
         # resulting acceleration and its constant part from the walls' velocities
         shape = cap if self.traction else 1
-        self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=cap if (self.traction or self.surface_rows) else 1)
+        self.Minv = ti.Matrix.field(3, 3, ti.f64, shape=shape)
         # the free-surface rows: whether row i is one, its outward normal n, 2 nu M^-T n (so
         # that 2 nu n.D.n = sum_j ((u_j - u_i) . n) (q . V grad W_ij)) and the walls' constant
         # share of that sum
@@ -881,17 +881,22 @@ class CoupledStokes:
             acc -= self.V * ti.cast(self.K.F(ti.sqrt(r2)), ti.f64) * x.outer_product(x)
 
     @ti.func
+    def _moment_inverse(self, i):
+        """M_i^-1, Bonet & Lok's correction of row i's kernel gradient."""
+        M = ti.Matrix.zero(ti.f64, 3, 3)
+        self.grid.for_each_listed(i, self._moment_task, M)
+        Minv = ti.Matrix.identity(ti.f64, 3)
+        # a neighbourhood in a plane or on a line has no inverse: left uncorrected
+        if ti.abs(M.determinant()) > 1e-6:
+            Minv = M.inverse()
+        return Minv
+
+    @ti.func
     def _surface_setup(self, n, S: ti.template()):
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
             i = self.rows.index[slot]
-            M = ti.Matrix.zero(ti.f64, 3, 3)
-            self.grid.for_each_listed(i, self._moment_task, M)
-            Minv = ti.Matrix.identity(ti.f64, 3)
-            # a neighbourhood in a plane or on a line has no inverse: left uncorrected
-            if ti.abs(M.determinant()) > 1e-6:
-                Minv = M.inverse()
-            self.Minv[i] = Minv
+            self.Minv[i] = self._moment_inverse(i)
 
     @ti.func
     def _gV(self, xij):
@@ -1624,8 +1629,7 @@ class CoupledStokes:
         if ti.static(self.quadratic):
             self._fit_setup(n, S)
         if ti.static(self.surface_rows):
-            self._surface_setup(n, S)
-            ti.loop_config(serialize=S > 0)
+            ti.loop_config(serialize=S > 1)
             for slot in range(n):
                 i = self.rows.index[slot]
                 self.srow[i] = 0
@@ -1635,7 +1639,8 @@ class CoupledStokes:
                     nu = ti.cast(self.visc.eta_of(i), ti.f64) / self.rho0
                     self.srow[i] = 1
                     self.sn[i] = nrm
-                    self.sq[i] = 2.0 * nu * (self.Minv[i].transpose() @ nrm)
+                    # only the surface rows need M^-1 (the strain-energy form keeps every row's)
+                    self.sq[i] = 2.0 * nu * (self._moment_inverse(i).transpose() @ nrm)
         g = ti.Vector([gx, gy, gz])
         ti.loop_config(serialize=S > 1)
         for slot in range(n):
@@ -1977,15 +1982,10 @@ class CoupledStokes:
             raise RuntimeError(f"{n} melt rows exceed the {self.rows_cap} the coupled solve was "
                                "sized for: only the inlet makes melt, and the plan counts it")
         self.c2inv[None] = self.inv_c2 if compressible else 0.0
-        if self.surface_rows:
+        if self.surface_rows or self.two_way:
             if self.surface is None:
-                raise RuntimeError("the free-surface rows read Marrone's flags: attach_surface() "
-                                   "before the first solve")
-            self.surface.current()
-        if self.two_way:
-            if self.surface is None:
-                raise RuntimeError("the two-way density source reads the free-surface flags: "
-                                   "attach_surface() before the first solve")
+                raise RuntimeError("the two-way density source and the free-surface rows read "
+                                   "Marrone's flags: attach_surface() before the first solve")
             self.surface.current()
         inner = 0
         S = self.serial(n)

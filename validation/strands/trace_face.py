@@ -33,7 +33,7 @@ def state_at(time_s: float, resolution: str, changes: dict) -> dict:
                 got.update(t=t, x=(st.x.to_numpy()[:n] + st.origin_m) * 1e3, v=st.v.to_numpy()[:n],
                            phase=st.phase.to_numpy()[:n], k=s.dfsph.kappa.to_numpy()[:n],
                            flag=s.stokes.surface.flag.to_numpy()[:n], dx_mm=dx_mm,
-                           H_mm=sim.kernel.H * 1e3, mu=sim.material.viscosity_pa_s,
+                           kernel=sim.kernel, mu=sim.material.viscosity_pa_s,
                            rho0=sim.material.density_kg_m3, gap_mm=0.2)
 
         def close(self):
@@ -41,14 +41,6 @@ def state_at(time_s: float, resolution: str, changes: dict) -> dict:
 
     sim.run(reporter=Grab())
     return got
-
-
-def cubic_F(r, H):
-    """(dW/dr) / r of the cubic spline with support H (kernels.Kernel.F)."""
-    q = r / H
-    gs = 48.0 / (np.pi * H**3)
-    return np.where(q <= 0.5, gs * (3 * q - 2) / H**2,
-                    np.where(q < 1, -gs * np.clip(1 - q, 0, None) ** 2 / (H * H * np.maximum(q, 1e-12)), 0.0))
 
 
 def main() -> None:
@@ -97,7 +89,8 @@ def main() -> None:
         print(f"  along {lo + 0.05:+.2f} mm:", " ".join(row))
     # the free surface near the nozzle, clear of walls: pressure against 2 mu n.D.n from the
     # corrected velocity gradient (Bonet & Lok), n from the kernel sum's gradient
-    H, dxm = d["H_mm"] * 1e-3, d["dx_mm"] * 1e-3
+    K, dxm = d["kernel"], d["dx_mm"] * 1e-3
+    H = K.H
     V = dxm**3
     xm = x * 1e-3
     fluid = (ph == FLUID) | (ph == INLET)
@@ -110,7 +103,7 @@ def main() -> None:
         r = xm[i] - xm[fluid]
         dist = np.linalg.norm(r, axis=1)
         s = (dist < H) & (dist > 0)
-        gW = cubic_F(dist[s], H)[:, None] * r[s]
+        gW = K.F_np(dist[s])[:, None] * r[s]
         M = (V * ((-r[s])[:, :, None] * gW[:, None, :])).sum(0)
         if abs(np.linalg.det(M)) < 1e-12:
             continue
