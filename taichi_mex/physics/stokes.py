@@ -1985,7 +1985,8 @@ class CoupledStokes:
         if self.surface_rows or self.two_way:
             if self.surface is None:
                 raise RuntimeError("the two-way density source and the free-surface rows read "
-                                   "Marrone's flags: attach_surface() before the first solve")
+                                   "the free-surface flags: attach_surface() before the first "
+                                   "solve")
             self.surface.current()
         inner = 0
         S = self.serial(n)
